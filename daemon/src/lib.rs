@@ -1,0 +1,1 @@
+//! The flowopt planning daemon; built in issue 3.

@@ -1,0 +1,1 @@
+//! The learned half of Flow-Opt (flow policy, SF initialiser); built in issue 4.

@@ -1,0 +1,156 @@
+//! Penalty schedule, stopping rules and the other knobs of an AM run.
+
+use serde::{Deserialize, Serialize};
+
+/// Penalty schedule: `rho_l = min(max, initial * factor^(l / every))`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct RhoSchedule {
+    /// Penalty at iteration 0.
+    pub initial: f64,
+    /// Growth factor per stage (1 = constant).
+    pub factor: f64,
+    /// Iterations per stage.
+    pub every: usize,
+    /// Ceiling.
+    pub max: f64,
+}
+
+impl RhoSchedule {
+    /// A constant penalty.
+    pub fn constant(rho: f64) -> Self {
+        Self { initial: rho, factor: 1.0, every: usize::MAX, max: rho }
+    }
+
+    /// The distinct penalty values, in order (at most 64).
+    pub fn levels(&self) -> Vec<f64> {
+        let mut levels = vec![self.initial.min(self.max)];
+        if self.factor > 1.0 && self.every > 0 {
+            while let Some(&last) = levels.last() {
+                if last >= self.max || levels.len() >= 64 {
+                    break;
+                }
+                levels.push((last * self.factor).min(self.max));
+            }
+        }
+        levels
+    }
+
+    /// Index into [`Self::levels`] (of length `count`) used at iteration `l`.
+    pub fn level_at(&self, l: usize, count: usize) -> usize {
+        if self.every == 0 || self.every == usize::MAX {
+            return 0;
+        }
+        (l / self.every).min(count - 1)
+    }
+}
+
+/// Stopping rules, penalty schedule, safety margin and starts.
+///
+/// Without dense verification (`verify_every = 0`, the paper's rule) a run
+/// stops when the primal residual (inflated sizes, at the K samples) is at or
+/// below `tolerance` ([`Stop::Tolerance`]).
+///
+/// With it, the iterate is checked on the dense re-sampling of
+/// [`crate::metrics::Metrics`] against the true sizes and box, with no
+/// overlap allowed (stricter than the success verdict's tolerance), every
+/// `verify_every` iterations once the primal residual is at or below
+/// `verify_below`, and whenever it is at or below `tolerance`; the run stops
+/// when the check passes ([`Stop::Verified`]). A plan that meets the samples
+/// but dips between them keeps iterating.
+///
+/// Either way `max_iterations` ends the run ([`Stop::IterationCap`], after a
+/// last verification).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct AmSettings {
+    /// Penalty schedule.
+    pub rho: RhoSchedule,
+    /// Stop when the primal residual is at or below this (m).
+    pub tolerance: f64,
+    /// Iteration cap (shared by all attempts of a restarted solve).
+    pub max_iterations: usize,
+    /// Relative inflation of every separation (and shrinking of the box by
+    /// `margin` robot radii) used by the constraints.
+    pub margin: f64,
+    /// Verify on the dense grid every this many iterations (0: never).
+    pub verify_every: usize,
+    /// Only verify once the primal residual is at or below this (m).
+    pub verify_below: f64,
+    /// Optimiser only: further attempts from perturbed cold starts when an
+    /// attempt hits its share of the iteration cap.
+    pub restarts: usize,
+    /// Optimiser only: start a robot whose straight segment crosses a static
+    /// obstacle from a route around the obstacles ([`crate::route`]) instead
+    /// of the smoothest curve (the paper's cold start).
+    pub routed_start: bool,
+    /// Record the per-iteration residuals.
+    pub record_history: bool,
+}
+
+impl AmSettings {
+    /// Defaults for the from-scratch optimiser.
+    pub fn optimiser() -> Self {
+        Self {
+            rho: RhoSchedule { initial: 1.0, factor: 2.0, every: 200, max: 100.0 },
+            tolerance: 0.01,
+            max_iterations: 10_000,
+            margin: 0.05,
+            verify_every: 10,
+            verify_below: 0.1,
+            restarts: 3,
+            routed_start: true,
+            record_history: false,
+        }
+    }
+
+    /// Defaults for the safety filter.
+    pub fn safety_filter() -> Self {
+        Self {
+            rho: RhoSchedule::constant(5.0),
+            tolerance: 0.01,
+            max_iterations: 500,
+            margin: 0.05,
+            verify_every: 10,
+            verify_below: 0.1,
+            restarts: 0,
+            routed_start: false,
+            record_history: false,
+        }
+    }
+
+    /// The same settings run to a fixed primal tolerance with no dense
+    /// verification and no restarts: for residual-decay studies.
+    pub fn residual_study(mut self, tolerance: f64) -> Self {
+        self.tolerance = tolerance;
+        self.verify_every = 0;
+        self.restarts = 0;
+        self.record_history = true;
+        self
+    }
+}
+
+/// Why a run stopped.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum Stop {
+    /// The primal residual reached the tolerance.
+    Tolerance,
+    /// The iterate passed the dense verification at the true sizes.
+    Verified,
+    /// The iteration cap was hit without either.
+    IterationCap,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn schedule_levels_grow_to_the_ceiling() {
+        let s = RhoSchedule { initial: 1.0, factor: 2.0, every: 100, max: 10.0 };
+        assert_eq!(s.levels(), vec![1.0, 2.0, 4.0, 8.0, 10.0]);
+        assert_eq!(s.level_at(0, 5), 0);
+        assert_eq!(s.level_at(250, 5), 2);
+        assert_eq!(s.level_at(10_000, 5), 4);
+        assert_eq!(RhoSchedule::constant(3.0).levels(), vec![3.0]);
+        assert_eq!(RhoSchedule::constant(3.0).level_at(1_000_000, 1), 0);
+    }
+}

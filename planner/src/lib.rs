@@ -1,0 +1,24 @@
+//! flowopt's planner core: the math, no I/O.
+//!
+//! - [`basis`]: the Bernstein basis trajectories are written in;
+//! - [`problem`]: teams, instances, validation;
+//! - [`scenario`]: seeded random instances, antipodal swaps, scenario files;
+//! - [`kkt`]: the structured (mean/difference-mode) KKT solve and its dense
+//!   reference;
+//! - [`linalg`]: the dense products they run on;
+//! - [`am`]: the alternating-minimisation engine, used as the safety filter
+//!   and as the from-scratch optimiser;
+//! - [`route`]: obstacle-aware cold starts for the optimiser;
+//! - [`plan`]: a joint plan and its evaluation;
+//! - [`metrics`]: smoothness, arc length, clearances, the success verdict,
+//!   time scaling.
+
+pub mod am;
+pub mod basis;
+pub mod kkt;
+pub mod linalg;
+pub mod metrics;
+pub mod plan;
+pub mod problem;
+pub mod route;
+pub mod scenario;

@@ -1,0 +1,83 @@
+//! A joint plan: Bernstein coefficients for every robot and axis over a
+//! horizon, and its evaluation at any time.
+
+use nalgebra::Vector3;
+
+use crate::basis::bernstein_row;
+use crate::problem::{Dim, Team};
+
+/// Position, velocity and acceleration of one robot at one instant.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Kinematics {
+    /// Position (m).
+    pub position: Vector3<f64>,
+    /// Velocity (m/s).
+    pub velocity: Vector3<f64>,
+    /// Acceleration (m/s^2).
+    pub acceleration: Vector3<f64>,
+}
+
+/// The trajectories of a whole team.
+#[derive(Debug, Clone, PartialEq)]
+pub struct JointPlan {
+    /// Workspace dimension.
+    pub dim: Dim,
+    /// Number of robots.
+    pub robots: usize,
+    /// Bernstein degree.
+    pub degree: usize,
+    /// Horizon T (s).
+    pub horizon: f64,
+    /// Coefficients, `[axis][robot][coef]`.
+    pub coeffs: Vec<f64>,
+}
+
+impl JointPlan {
+    /// Wraps coefficients laid out `[axis][robot][coef]` for `team`.
+    pub fn new(team: &Team, coeffs: Vec<f64>) -> Self {
+        debug_assert_eq!(coeffs.len(), team.dim.axes() * team.robots * (team.degree + 1));
+        Self { dim: team.dim, robots: team.robots, degree: team.degree, horizon: team.horizon, coeffs }
+    }
+
+    /// Coefficients of one robot along one axis.
+    pub fn coefficients(&self, axis: usize, robot: usize) -> &[f64] {
+        let nx = self.degree + 1;
+        let start = (axis * self.robots + robot) * nx;
+        &self.coeffs[start..start + nx]
+    }
+
+    /// Every robot's kinematics at `t` seconds (clamped to `[0, T]`).
+    pub fn at(&self, t: f64) -> Vec<Kinematics> {
+        let tau = (t / self.horizon).clamp(0.0, 1.0);
+        let rows = [0, 1, 2].map(|order| bernstein_row(self.degree, order, tau));
+        let scale = [1.0, 1.0 / self.horizon, 1.0 / (self.horizon * self.horizon)];
+        (0..self.robots)
+            .map(|i| {
+                let mut v = [Vector3::zeros(); 3];
+                for a in 0..self.dim.axes() {
+                    let c = self.coefficients(a, i);
+                    for order in 0..3 {
+                        v[order][a] = rows[order].iter().zip(c).map(|(b, x)| b * x).sum::<f64>() * scale[order];
+                    }
+                }
+                Kinematics { position: v[0], velocity: v[1], acceleration: v[2] }
+            })
+            .collect()
+    }
+
+    /// The `order`-th time derivative (physical units) of every robot at
+    /// `samples` evenly spaced instants over `[0, T]`, `[axis][robot][sample]`.
+    pub fn sampled(&self, samples: usize, order: usize) -> Vec<f64> {
+        let nx = self.degree + 1;
+        let scale = self.horizon.powi(-(order as i32));
+        let rows: Vec<Vec<f64>> =
+            (0..samples).map(|s| bernstein_row(self.degree, order, s as f64 / (samples - 1) as f64)).collect();
+        let mut out = vec![0.0; self.dim.axes() * self.robots * samples];
+        for (series, c) in out.chunks_exact_mut(samples).zip(self.coeffs.chunks_exact(nx)) {
+            for (o, row) in series.iter_mut().zip(&rows) {
+                *o = row.iter().zip(c).map(|(b, x)| b * x).sum::<f64>() * scale;
+            }
+        }
+        out
+    }
+}
