@@ -34,6 +34,8 @@
 mod projection;
 mod settings;
 
+use std::time::Instant;
+
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use thiserror::Error;
@@ -51,6 +53,14 @@ use projection::{Limits, Projection, SampleGrid};
 
 /// First sample the constraints are imposed at (sample 0 is the start state).
 pub const FIRST_CONSTRAINED_SAMPLE: usize = 1;
+
+/// Iterations between two deadline checks (a clock read costs about as
+/// much as a tenth of a small team's iteration).
+const DEADLINE_CHECK_EVERY: usize = 4;
+
+/// How exactly a start must meet the boundary conditions to be returned
+/// without an update (normalised time units).
+const BOUNDARY_EXACTNESS: f64 = 1e-9;
 
 /// Amplitude of a restart's perturbation of the interior coefficients, in
 /// robot separations.
@@ -169,6 +179,8 @@ pub struct Engine {
     cold: SmallKkt,
     /// Fits routed cold starts to the basis.
     fitter: Fitter,
+    /// The six boundary rows, `6 x n_xi`.
+    boundary_rows: Vec<f64>,
 }
 
 /// Per-problem data the iterations read.
@@ -184,6 +196,8 @@ pub struct Prepared {
     constraint: Limits,
     /// True sizes and box on the dense grid.
     verify: Limits,
+    /// Boundary values `[axis][robot][6]` (normalised time).
+    boundary: Vec<f64>,
 }
 
 /// Runs single AM iterations with buffers allocated once: the unit the
@@ -249,7 +263,21 @@ impl Engine {
             .collect::<Result<Vec<_>, KktError>>()?;
         let cold = SmallKkt::new(&cost, &boundary, n_xi)?;
         let fitter = Fitter::new(&basis)?;
-        Ok(Self { team: team.clone(), obstacles, objective, settings, basis, n_xi, grid, dense, levels, cold, fitter })
+        let boundary_rows = basis.boundary_rows();
+        Ok(Self {
+            team: team.clone(),
+            obstacles,
+            objective,
+            settings,
+            basis,
+            n_xi,
+            grid,
+            dense,
+            levels,
+            cold,
+            fitter,
+            boundary_rows,
+        })
     }
 
     /// The team this engine plans for.
@@ -347,6 +375,7 @@ impl Engine {
             cold,
             constraint: Limits::new(problem, &self.grid, 1.0 + margin, shrink),
             verify: Limits::new(problem, &self.dense, 1.0, [0.0; 3]),
+            boundary: b,
         })
     }
 
@@ -426,6 +455,12 @@ impl Engine {
 
     /// [`Self::solve`] for an already prepared problem.
     pub fn solve_prepared(&self, prepared: &Prepared) -> AmOutcome {
+        self.solve_prepared_until(prepared, None)
+    }
+
+    /// [`Self::solve_prepared`] that also stops ([`Stop::Deadline`]) with the
+    /// best iterate so far once `deadline` has passed.
+    pub fn solve_prepared_until(&self, prepared: &Prepared, deadline: Option<Instant>) -> AmOutcome {
         let attempts = self.settings.restarts + 1;
         let share = self.settings.max_iterations / attempts;
         let mut iterations = 0;
@@ -438,10 +473,14 @@ impl Engine {
             }
             let cap =
                 if attempt + 1 == attempts { self.settings.max_iterations - share * (attempts - 1) } else { share };
-            let mut outcome = self.run_capped(prepared, state, cap);
+            let mut outcome = self.run_capped(prepared, state, cap, deadline);
             iterations += outcome.iterations;
             history.append(&mut outcome.history);
             let done = outcome.stop != Stop::IterationCap;
+            if outcome.stop == Stop::Deadline {
+                best = Some(outcome);
+                break;
+            }
             if best.as_ref().is_none_or(|b| done || outcome.primal < b.primal) {
                 best = Some(outcome);
             }
@@ -485,10 +524,16 @@ impl Engine {
 
     /// Iterates from `state` under the stopping rules of [`AmSettings`].
     pub fn run(&self, prepared: &Prepared, state: AmState) -> AmOutcome {
-        self.run_capped(prepared, state, self.settings.max_iterations)
+        self.run_capped(prepared, state, self.settings.max_iterations, None)
     }
 
-    fn run_capped(&self, prepared: &Prepared, mut state: AmState, cap: usize) -> AmOutcome {
+    /// [`Self::run`] that also stops ([`Stop::Deadline`]) once `deadline`
+    /// has passed.
+    pub fn run_until(&self, prepared: &Prepared, state: AmState, deadline: Instant) -> AmOutcome {
+        self.run_capped(prepared, state, self.settings.max_iterations, Some(deadline))
+    }
+
+    fn run_capped(&self, prepared: &Prepared, mut state: AmState, cap: usize, deadline: Option<Instant>) -> AmOutcome {
         let dim = self.team.dim;
         let n = self.team.robots;
         let mut projection = Projection::new(dim, n, &self.grid);
@@ -500,12 +545,17 @@ impl Engine {
             let primal = projection.run(dim, n, &self.grid, &prepared.constraint, &state.xi);
             let verifying = s.verify_every > 0;
             let due = primal <= s.tolerance || iterations % s.verify_every.max(1) == 0 || iterations >= cap;
-            let stop = if !verifying && primal <= s.tolerance {
+            // Every update meets the boundary conditions; a given start
+            // (an SF sample) may not, and must not be returned as it is.
+            let acceptable = || iterations > 0 || self.meets_boundary(prepared, &state.xi);
+            let stop = if !verifying && primal <= s.tolerance && acceptable() {
                 Some(Stop::Tolerance)
-            } else if verifying && primal <= s.verify_below && due && self.verify(prepared, &state.xi) {
+            } else if verifying && primal <= s.verify_below && due && acceptable() && self.verify(prepared, &state.xi) {
                 Some(Stop::Verified)
             } else if iterations >= cap {
                 Some(Stop::IterationCap)
+            } else if deadline.is_some_and(|d| iterations % DEADLINE_CHECK_EVERY == 0 && Instant::now() >= d) {
+                Some(Stop::Deadline)
             } else {
                 None
             };
@@ -545,6 +595,14 @@ impl Engine {
     pub fn verify(&self, prepared: &Prepared, xi: &[f64]) -> bool {
         let (dim, n) = (self.team.dim, self.team.robots);
         Projection::new(dim, n, &self.dense).run(dim, n, &self.dense, &prepared.verify, xi) == 0.0
+    }
+
+    /// Whether `xi` meets the boundary conditions (to 1e-9 in normalised time).
+    fn meets_boundary(&self, prepared: &Prepared, xi: &[f64]) -> bool {
+        let rows = &self.boundary_rows;
+        xi.chunks_exact(self.n_xi).zip(prepared.boundary.chunks_exact(BOUNDARY_ROWS)).all(|(x, b)| {
+            rows.chunks_exact(self.n_xi).zip(b).all(|(row, bv)| (dot(row, x) - bv).abs() <= BOUNDARY_EXACTNESS)
+        })
     }
 
     fn work(&self) -> Work {
@@ -647,6 +705,21 @@ mod tests {
     }
 
     #[test]
+    fn a_passed_deadline_stops_the_optimiser_with_its_current_iterate() {
+        let team = Team::default_for(Dim::Two, 16);
+        let problem = RandomScenario::new(team.clone()).generate(5).unwrap();
+        let engine = optimiser(&team, 0);
+        let prepared = engine.prepare(&problem, None).unwrap();
+        assert!(!engine.verify(&prepared, &engine.cold_start(&prepared).xi), "the straight lines collide");
+        let outcome = engine.solve_prepared_until(&prepared, Some(Instant::now()));
+        assert_eq!(outcome.stop, Stop::Deadline);
+        assert_eq!(outcome.iterations, 0);
+        assert_eq!(outcome.state.xi, engine.cold_start(&prepared).xi);
+        let unhurried = engine.solve_prepared_until(&prepared, None);
+        assert_eq!(unhurried.stop, Stop::Verified);
+    }
+
+    #[test]
     fn the_safety_filter_leaves_a_feasible_sample_alone() {
         let team = Team::default_for(Dim::Two, 6);
         let problem = RandomScenario::new(team.clone()).generate(4).unwrap();
@@ -657,6 +730,20 @@ mod tests {
         let outcome = sf.run(&prepared, sf.cold_start(&prepared));
         assert_eq!((outcome.iterations, outcome.stop), (0, Stop::Verified));
         assert_eq!(outcome.state.xi, solved);
+    }
+
+    #[test]
+    fn the_safety_filter_never_returns_a_sample_that_breaks_the_boundary_conditions() {
+        let team = Team::default_for(Dim::Two, 6);
+        let problem = RandomScenario::new(team.clone()).generate(4).unwrap();
+        let mut sample = optimiser(&team, 0).solve(&problem).unwrap().state.xi;
+        sample[0] += 1e-3; // robot 0's first x coefficient: its start position
+        let sf = Engine::new(&team, 0, Objective::Projection, AmSettings::safety_filter()).unwrap();
+        let outcome = sf.filter(&problem, &sample, None).unwrap();
+        assert_eq!(outcome.stop, Stop::Verified);
+        assert!(outcome.iterations >= 1);
+        let m = Metrics::measure(&problem, &JointPlan::new(&team, outcome.state.xi));
+        assert!(m.boundary_error < 1e-9, "boundary error {}", m.boundary_error);
     }
 
     #[test]

@@ -137,6 +137,8 @@ pub enum Stop {
     Verified,
     /// The iteration cap was hit without either.
     IterationCap,
+    /// The caller's deadline passed first.
+    Deadline,
 }
 
 #[cfg(test)]

@@ -1,0 +1,399 @@
+//! The iceoryx2 ports that carry the messages, with the service settings
+//! in one place so the daemon and every client open identical services.
+//!
+//! Per team there are four services under a prefix (`flowopt` by default):
+//! `<prefix>/<team>/state` and `<prefix>/<team>/plan` carry the messages
+//! with latest-value semantics (subscriber buffer 1, safe overflow, history
+//! 1: a reader always gets the newest one and a late joiner the last one),
+//! and `<prefix>/<team>/state/ready` and `<prefix>/<team>/plan/ready` are
+//! event services a publisher notifies after each send, so a reader can
+//! sleep in a listener or a WaitSet instead of polling.
+
+use std::fmt::Debug;
+use std::time::{Duration, Instant};
+
+use iceoryx2::port::listener::Listener;
+use iceoryx2::port::notifier::Notifier;
+use iceoryx2::port::publisher::Publisher;
+use iceoryx2::port::subscriber::Subscriber;
+use iceoryx2::prelude::*;
+use iceoryx2::sample::Sample;
+use thiserror::Error;
+
+use crate::clock::monotonic_ns;
+use crate::messages::{JointTrajectory, PlanStatus, StateSnapshot, WIRE_VERSION};
+
+/// Publishers a service admits (two, so a restarted publisher can join
+/// before its dead predecessor is cleaned up).
+const MAX_PUBLISHERS: usize = 2;
+/// Subscribers a service admits.
+const MAX_SUBSCRIBERS: usize = 16;
+/// Nodes that may open a service.
+const MAX_NODES: usize = 32;
+
+/// Errors of the client library.
+#[derive(Debug, Error)]
+pub enum ClientError {
+    /// An iceoryx2 call failed.
+    #[error("iceoryx2 {op} failed: {detail}")]
+    Ipc {
+        /// What was being done.
+        op: &'static str,
+        /// iceoryx2's error.
+        detail: String,
+    },
+    /// A prefix or team name that does not make a valid service name.
+    #[error("invalid service name {0:?}")]
+    ServiceName(String),
+    /// A team name that does not fit a message.
+    #[error("team name {0:?} must be 1-32 bytes of UTF-8 without NUL")]
+    TeamName(String),
+    /// Sampling a message that carries no plan.
+    #[error("the message carries no plan (status {0:?})")]
+    NoPlan(PlanStatus),
+    /// A plan message with an impossible shape.
+    #[error("the plan message has an invalid {0}")]
+    Shape(&'static str),
+    /// Sampling a robot the plan does not have.
+    #[error("robot {robot} out of range: the plan has {robots}")]
+    RobotOutOfRange {
+        /// Requested robot.
+        robot: usize,
+        /// Robots in the plan.
+        robots: usize,
+    },
+    /// A plan larger than the message capacity.
+    #[error("a plan of {robots} robots with {coefficients} coefficients per axis exceeds the message capacity")]
+    Capacity {
+        /// Robots.
+        robots: usize,
+        /// Coefficients per robot and axis.
+        coefficients: usize,
+    },
+}
+
+fn ipc<E: Debug>(op: &'static str) -> impl FnOnce(E) -> ClientError {
+    move |e| ClientError::Ipc { op, detail: format!("{e:?}") }
+}
+
+/// The names of one team's four services.
+#[derive(Debug, Clone)]
+pub struct TeamChannel {
+    team: String,
+    state: ServiceName,
+    state_ready: ServiceName,
+    plan: ServiceName,
+    plan_ready: ServiceName,
+}
+
+impl TeamChannel {
+    /// The services of `team` under `prefix` (`flowopt` in production; a
+    /// unique prefix isolates tests and demos).
+    pub fn new(prefix: &str, team: &str) -> Result<Self, ClientError> {
+        let name = |suffix: &str| {
+            let s = format!("{prefix}/{team}/{suffix}");
+            ServiceName::new(&s).map_err(|_| ClientError::ServiceName(s))
+        };
+        if team.is_empty() || team.len() > crate::TEAM_NAME_LEN || team.contains(['/', '\0']) {
+            return Err(ClientError::TeamName(team.to_string()));
+        }
+        Ok(Self {
+            team: team.to_string(),
+            state: name("state")?,
+            state_ready: name("state/ready")?,
+            plan: name("plan")?,
+            plan_ready: name("plan/ready")?,
+        })
+    }
+
+    /// The team's name.
+    pub fn team(&self) -> &str {
+        &self.team
+    }
+}
+
+/// A message type that may be sent: every field valid when all bytes are
+/// zero, and a version to stamp.
+///
+/// # Safety
+/// Implementors guarantee that the all-zero bit pattern is a valid value.
+unsafe trait Wire: Debug + ZeroCopySend + 'static {}
+
+// SAFETY: integers, floats and arrays of them; zero is valid for each.
+unsafe impl Wire for StateSnapshot {}
+// SAFETY: as above, and both enums have a variant with discriminant 0.
+unsafe impl Wire for JointTrajectory {}
+
+/// One iceoryx2 node: the handle a process (or thread: the ports are not
+/// `Send`) opens its ports from. Signal handling is left to the
+/// application (iceoryx2's own handlers are disabled).
+#[derive(Debug)]
+pub struct Endpoint {
+    node: Node<ipc::Service>,
+}
+
+impl Endpoint {
+    /// A node named `name` in the default iceoryx2 domain. Creating it
+    /// also removes the resources of dead nodes.
+    pub fn new(name: &str) -> Result<Self, ClientError> {
+        let node_name = NodeName::new(name).map_err(|_| ClientError::ServiceName(name.to_string()))?;
+        let node = NodeBuilder::new()
+            .name(&node_name)
+            .signal_handling_mode(SignalHandlingMode::Disabled)
+            .create::<ipc::Service>()
+            .map_err(ipc("node creation"))?;
+        Ok(Self { node })
+    }
+
+    /// The underlying node.
+    pub fn node(&self) -> &Node<ipc::Service> {
+        &self.node
+    }
+
+    /// For a controller: publishes snapshots of `channel`'s team.
+    pub fn state_publisher(&self, channel: &TeamChannel) -> Result<StatePublisher, ClientError> {
+        Ok(StatePublisher {
+            outlet: self.outlet(&channel.state, &channel.state_ready)?,
+            team: channel.team.clone(),
+            next_sequence: 1,
+        })
+    }
+
+    /// For a controller: receives the newest plan of `channel`'s team.
+    pub fn plan_subscriber(&self, channel: &TeamChannel) -> Result<PlanSubscriber, ClientError> {
+        Ok(PlanSubscriber { inlet: self.inlet(&channel.plan, &channel.plan_ready)? })
+    }
+
+    /// For the daemon: receives the newest snapshot of `channel`'s team.
+    pub fn state_subscriber(&self, channel: &TeamChannel) -> Result<StateSubscriber, ClientError> {
+        Ok(StateSubscriber { inlet: self.inlet(&channel.state, &channel.state_ready)? })
+    }
+
+    /// For the daemon: publishes plans for `channel`'s team.
+    pub fn plan_publisher(&self, channel: &TeamChannel) -> Result<PlanPublisher, ClientError> {
+        Ok(PlanPublisher { outlet: self.outlet(&channel.plan, &channel.plan_ready)?, team: channel.team.clone() })
+    }
+
+    fn topic<T: Wire>(
+        &self,
+        name: &ServiceName,
+    ) -> Result<iceoryx2::service::port_factory::publish_subscribe::PortFactory<ipc::Service, T, ()>, ClientError>
+    {
+        self.node
+            .service_builder(name)
+            .publish_subscribe::<T>()
+            .subscriber_max_buffer_size(1)
+            .history_size(1)
+            .enable_safe_overflow(true)
+            .subscriber_max_borrowed_samples(2)
+            .max_publishers(MAX_PUBLISHERS)
+            .max_subscribers(MAX_SUBSCRIBERS)
+            .max_nodes(MAX_NODES)
+            .open_or_create()
+            .map_err(ipc("opening a topic"))
+    }
+
+    fn event(&self, name: &ServiceName) -> Result<iceoryx2::service::port_factory::event::PortFactory<ipc::Service>, ClientError> {
+        self.node
+            .service_builder(name)
+            .event()
+            .max_notifiers(MAX_PUBLISHERS * 4)
+            .max_listeners(MAX_SUBSCRIBERS)
+            .max_nodes(MAX_NODES)
+            .open_or_create()
+            .map_err(ipc("opening an event service"))
+    }
+
+    fn outlet<T: Wire>(&self, topic: &ServiceName, ready: &ServiceName) -> Result<Outlet<T>, ClientError> {
+        Ok(Outlet {
+            publisher: self.topic::<T>(topic)?.publisher_builder().create().map_err(ipc("creating a publisher"))?,
+            notifier: self.event(ready)?.notifier_builder().create().map_err(ipc("creating a notifier"))?,
+        })
+    }
+
+    fn inlet<T: Wire>(&self, topic: &ServiceName, ready: &ServiceName) -> Result<Inlet<T>, ClientError> {
+        Ok(Inlet {
+            subscriber: self
+                .topic::<T>(topic)?
+                .subscriber_builder()
+                .buffer_size(1)
+                .create()
+                .map_err(ipc("creating a subscriber"))?,
+            listener: self.event(ready)?.listener_builder().create().map_err(ipc("creating a listener"))?,
+        })
+    }
+}
+
+/// A received message, read in place from shared memory.
+pub type Received<T> = Sample<ipc::Service, T, ()>;
+
+/// Publisher + notifier of one message type.
+#[derive(Debug)]
+struct Outlet<T: Wire> {
+    publisher: Publisher<ipc::Service, T, ()>,
+    notifier: Notifier<ipc::Service>,
+}
+
+impl<T: Wire> Outlet<T> {
+    /// Loans a sample, zeroes it, lets `fill` write it in place, sends it
+    /// and wakes the listeners; returns the subscribers reached.
+    fn publish_with(&self, fill: impl FnOnce(&mut T)) -> Result<usize, ClientError> {
+        let mut sample = self.publisher.loan_uninit().map_err(ipc("loan"))?;
+        // SAFETY: `Wire` guarantees that all-zero bytes are a valid `T`, so
+        // the payload is initialised after the write.
+        let mut sample = unsafe {
+            sample.payload_mut().as_mut_ptr().write_bytes(0, 1);
+            sample.assume_init()
+        };
+        fill(sample.payload_mut());
+        let reached = sample.send().map_err(ipc("send"))?;
+        self.notifier.notify().map_err(ipc("notify"))?;
+        Ok(reached)
+    }
+}
+
+/// Subscriber + listener of one message type.
+#[derive(Debug)]
+struct Inlet<T: Wire> {
+    subscriber: Subscriber<ipc::Service, T, ()>,
+    listener: Listener<ipc::Service>,
+}
+
+impl<T: Wire> Inlet<T> {
+    fn latest(&self) -> Result<Option<Received<T>>, ClientError> {
+        let mut latest = None;
+        while let Some(sample) = self.subscriber.receive().map_err(ipc("receive"))? {
+            latest = Some(sample);
+        }
+        Ok(latest)
+    }
+
+    fn wait(&self, timeout: Duration) -> Result<Option<Received<T>>, ClientError> {
+        let deadline = Instant::now() + timeout;
+        loop {
+            self.drain_events()?;
+            if let Some(sample) = self.latest()? {
+                return Ok(Some(sample));
+            }
+            let left = deadline.saturating_duration_since(Instant::now());
+            if left.is_zero() {
+                return Ok(None);
+            }
+            self.listener.timed_wait(|_| {}, left).map_err(ipc("wait"))?;
+        }
+    }
+
+    fn drain_events(&self) -> Result<(), ClientError> {
+        self.listener.try_wait(|_| {}).map_err(ipc("event drain"))?;
+        Ok(())
+    }
+}
+
+/// A controller's port for snapshots.
+#[derive(Debug)]
+pub struct StatePublisher {
+    outlet: Outlet<StateSnapshot>,
+    team: String,
+    next_sequence: u64,
+}
+
+impl StatePublisher {
+    /// Publishes a snapshot written in place by `fill`, which receives it
+    /// zeroed apart from `version`, `team`, `sequence` (one more than the
+    /// last; starts at 1) and `timestamp_ns` (now): set `dim`, `robots`,
+    /// the robot states and the obstacles, and overwrite `timestamp_ns`
+    /// with the measurement time if it is earlier. Returns the sequence.
+    pub fn publish_with(&mut self, fill: impl FnOnce(&mut StateSnapshot)) -> Result<u64, ClientError> {
+        let sequence = self.next_sequence;
+        let team = &self.team;
+        self.outlet.publish_with(|s| {
+            s.version = WIRE_VERSION;
+            // The channel checked the name.
+            let _ = s.set_team(team);
+            s.sequence = sequence;
+            s.timestamp_ns = monotonic_ns();
+            fill(s);
+        })?;
+        self.next_sequence += 1;
+        Ok(sequence)
+    }
+}
+
+/// A controller's port for plans: newest-plan semantics.
+#[derive(Debug)]
+pub struct PlanSubscriber {
+    inlet: Inlet<JointTrajectory>,
+}
+
+impl PlanSubscriber {
+    /// The newest plan not yet taken, if any (older ones are dropped).
+    pub fn latest(&self) -> Result<Option<Received<JointTrajectory>>, ClientError> {
+        self.inlet.latest()
+    }
+
+    /// The newest plan not yet taken, waiting up to `timeout` for one.
+    pub fn wait(&self, timeout: Duration) -> Result<Option<Received<JointTrajectory>>, ClientError> {
+        self.inlet.wait(timeout)
+    }
+}
+
+/// The daemon's port for snapshots.
+#[derive(Debug)]
+pub struct StateSubscriber {
+    inlet: Inlet<StateSnapshot>,
+}
+
+impl StateSubscriber {
+    /// The newest snapshot not yet taken, if any; clears pending wake-ups.
+    pub fn latest(&self) -> Result<Option<Received<StateSnapshot>>, ClientError> {
+        self.inlet.drain_events()?;
+        self.inlet.latest()
+    }
+
+    /// The newest snapshot not yet taken, waiting up to `timeout` for one.
+    pub fn wait(&self, timeout: Duration) -> Result<Option<Received<StateSnapshot>>, ClientError> {
+        self.inlet.wait(timeout)
+    }
+
+    /// The listener woken on every snapshot, to attach to a WaitSet.
+    pub fn listener(&self) -> &Listener<ipc::Service> {
+        &self.inlet.listener
+    }
+}
+
+/// The daemon's port for plans.
+#[derive(Debug)]
+pub struct PlanPublisher {
+    outlet: Outlet<JointTrajectory>,
+    team: String,
+}
+
+impl PlanPublisher {
+    /// Publishes a plan written in place by `fill`, which receives it zeroed
+    /// apart from `version` and `team`; `published_ns` is stamped after
+    /// `fill`. Returns the subscribers reached.
+    pub fn publish_with(&self, fill: impl FnOnce(&mut JointTrajectory)) -> Result<usize, ClientError> {
+        let team = &self.team;
+        self.outlet.publish_with(|p| {
+            p.version = WIRE_VERSION;
+            let _ = p.set_team(team);
+            p.reason_index = u32::MAX;
+            fill(p);
+            p.published_ns = monotonic_ns();
+        })
+    }
+}
+
+/// Removes the resources of dead nodes in the default domain (a crashed
+/// daemon or controller); returns how many were cleaned.
+pub fn cleanup_dead_nodes() -> Result<usize, ClientError> {
+    let mut dead = Vec::new();
+    Node::<ipc::Service>::list(Config::global_config(), |state| {
+        if let NodeState::Dead(view) = state {
+            dead.push(view);
+        }
+        CallbackProgression::Continue
+    })
+    .map_err(ipc("listing nodes"))?;
+    Ok(dead.into_iter().filter(|d| d.clone().try_remove_stale_resources().is_ok()).count())
+}
