@@ -3,37 +3,72 @@
 //! One binary, one subcommand per job; `flowopt --help` lists them.
 
 mod bench;
+mod bench_ipc;
+mod daemon_args;
+mod demo;
 mod instances;
 mod methods;
+mod serve;
+mod sim;
 mod solve;
 mod stats;
 
-use anyhow::Result;
+use std::path::PathBuf;
+
+use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
+use tracing_subscriber::filter::{EnvFilter, LevelFilter};
+use tracing_subscriber::prelude::*;
 
 /// Centralized multi-robot trajectory planning (Flow-Opt).
 #[derive(Debug, Parser)]
 #[command(version, about)]
 struct Cli {
+    /// Write a Chrome/Perfetto trace of every span (planning stages) here.
+    #[arg(long, global = true, value_name = "FILE")]
+    trace_out: Option<PathBuf>,
     #[command(subcommand)]
     command: Command,
 }
 
 #[derive(Debug, Subcommand)]
 enum Command {
+    /// Run the planning daemon on a configuration.
+    Serve(serve::ServeArgs),
+    /// Run simulated robots that publish their state and track the daemon's plans.
+    Sim(sim::SimArgs),
+    /// Start the daemon and the simulator as two processes and report.
+    Demo(demo::DemoArgs),
     /// Plan one instance and report success, time and quality.
     Solve(solve::SolveArgs),
     /// Run a method over seeded instances and summarise (median, p95, ...).
     Bench(bench::BenchArgs),
+    /// Measure the round trip of a snapshot and a plan between two processes.
+    BenchIpc(bench_ipc::BenchIpcArgs),
 }
 
 fn main() -> Result<()> {
-    tracing_subscriber::fmt()
-        .with_env_filter(tracing_subscriber::EnvFilter::from_default_env())
-        .with_writer(std::io::stderr)
-        .init();
-    match Cli::parse().command {
+    let cli = Cli::parse();
+    // Logs: RUST_LOG, or warnings plus the daemon's and simulator's
+    // progress. The trace, if asked for, records every span at INFO.
+    let filter = EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| EnvFilter::new("warn,flowopt_daemon=info,iceoryx2_bb_loggers=error"));
+    let fmt = tracing_subscriber::fmt::layer().with_writer(std::io::stderr).with_filter(filter);
+    let mut _flush = None;
+    // `demo` hands the trace file to its daemon process instead.
+    let traced_here = !matches!(cli.command, Command::Demo(_));
+    let chrome = cli.trace_out.as_ref().filter(|_| traced_here).map(|path| {
+        let (layer, guard) = tracing_chrome::ChromeLayerBuilder::new().file(path).include_args(true).build();
+        _flush = Some(guard);
+        layer.with_filter(LevelFilter::INFO)
+    });
+    tracing_subscriber::registry().with(fmt).with(chrome).try_init().context("cannot install the logger")?;
+    match cli.command {
+        Command::Serve(args) => serve::run(args),
+        Command::Sim(args) => sim::run(args),
+        Command::Demo(args) => demo::run(args, cli.trace_out),
         Command::Solve(args) => solve::run(args),
         Command::Bench(args) => bench::run(args),
+        Command::BenchIpc(args) => bench_ipc::run(args),
     }
 }

@@ -177,8 +177,7 @@ impl Endpoint {
     fn topic<T: Wire>(
         &self,
         name: &ServiceName,
-    ) -> Result<iceoryx2::service::port_factory::publish_subscribe::PortFactory<ipc::Service, T, ()>, ClientError>
-    {
+    ) -> Result<iceoryx2::service::port_factory::publish_subscribe::PortFactory<ipc::Service, T, ()>, ClientError> {
         self.node
             .service_builder(name)
             .publish_subscribe::<T>()
@@ -193,7 +192,10 @@ impl Endpoint {
             .map_err(ipc("opening a topic"))
     }
 
-    fn event(&self, name: &ServiceName) -> Result<iceoryx2::service::port_factory::event::PortFactory<ipc::Service>, ClientError> {
+    fn event(
+        &self,
+        name: &ServiceName,
+    ) -> Result<iceoryx2::service::port_factory::event::PortFactory<ipc::Service>, ClientError> {
         self.node
             .service_builder(name)
             .event()

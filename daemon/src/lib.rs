@@ -1,1 +1,18 @@
-//! The flowopt planning daemon; built in issue 3.
+//! The flowopt planning daemon.
+//!
+//! - [`config`]: the TOML configuration (teams, sizes, workspace, horizon,
+//!   rates, deadlines);
+//! - [`convert`]: a snapshot checked and turned into a planning problem, or a
+//!   rejection with a reason code;
+//! - [`planning`]: one team's planner: warm start from the previous plan
+//!   shifted in time, cold plans, deadlines, status;
+//! - [`serve()`]: the service: preloading, a WaitSet on every team's
+//!   snapshot events, one worker thread per team, graceful shutdown.
+
+pub mod config;
+pub mod convert;
+pub mod planning;
+mod serve;
+mod worker;
+
+pub use serve::{DaemonError, serve};

@@ -68,15 +68,11 @@ impl Metrics {
             v
         };
         let pos = plan.sampled(k, 0);
-        let acc = plan.sampled(k, 2);
-        let mut smoothness = 0.0;
+        let smoothness = plan.smoothness(k);
         let mut arc_length = 0.0;
         for i in 0..n {
-            for s in 0..k {
-                smoothness += vec_at(&acc, k, i, s).norm_squared();
-                if s + 1 < k {
-                    arc_length += (vec_at(&pos, k, i, s + 1) - vec_at(&pos, k, i, s)).norm();
-                }
+            for s in 0..k - 1 {
+                arc_length += (vec_at(&pos, k, i, s + 1) - vec_at(&pos, k, i, s)).norm();
             }
         }
         let dense = DENSE_FACTOR * k;

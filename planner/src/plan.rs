@@ -65,6 +65,12 @@ impl JointPlan {
             .collect()
     }
 
+    /// Smoothness: the sum over robots and `samples` evenly spaced instants
+    /// of the squared acceleration (m^2/s^4).
+    pub fn smoothness(&self, samples: usize) -> f64 {
+        self.sampled(samples, 2).iter().map(|a| a * a).sum()
+    }
+
     /// The `order`-th time derivative (physical units) of every robot at
     /// `samples` evenly spaced instants over `[0, T]`, `[axis][robot][sample]`.
     pub fn sampled(&self, samples: usize, order: usize) -> Vec<f64> {

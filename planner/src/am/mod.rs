@@ -240,8 +240,10 @@ impl Engine {
         let k = basis.samples();
         let grid = SampleGrid::new(team.degree, (FIRST_CONSTRAINED_SAMPLE..k).map(|s| basis.tau(s)).collect());
         let dense_count = DENSE_FACTOR * k;
-        let dense =
-            SampleGrid::new(team.degree, (1..dense_count).map(|s| s as f64 / (dense_count - 1) as f64).collect());
+        let dense = SampleGrid::new(
+            team.degree,
+            (1 + settings.verify_skip..dense_count).map(|s| s as f64 / (dense_count - 1) as f64).collect(),
+        );
         let gram = basis.gram(FIRST_CONSTRAINED_SAMPLE);
         let boundary = basis.boundary_rows();
         let cost = match objective {
@@ -374,7 +376,7 @@ impl Engine {
             target,
             cold,
             constraint: Limits::new(problem, &self.grid, 1.0 + margin, shrink),
-            verify: Limits::new(problem, &self.dense, 1.0, [0.0; 3]),
+            verify: Limits::new(problem, &self.dense, 1.0 + self.settings.verify_margin, [0.0; 3]),
             boundary: b,
         })
     }

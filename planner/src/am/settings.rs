@@ -84,6 +84,15 @@ pub struct AmSettings {
     pub routed_start: bool,
     /// Record the per-iteration residuals.
     pub record_history: bool,
+    /// Relative inflation of every separation in the dense verification
+    /// (0: the true sizes). A buffer for robots that track plans imperfectly.
+    #[serde(default)]
+    pub verify_margin: f64,
+    /// Dense instants right after the start left out of the verification.
+    /// A measured start can be in near-contact; with a `verify_margin` it
+    /// cannot be verified at the very next instants.
+    #[serde(default)]
+    pub verify_skip: usize,
 }
 
 impl AmSettings {
@@ -99,6 +108,8 @@ impl AmSettings {
             restarts: 3,
             routed_start: true,
             record_history: false,
+            verify_margin: 0.0,
+            verify_skip: 0,
         }
     }
 
@@ -114,6 +125,8 @@ impl AmSettings {
             restarts: 0,
             routed_start: false,
             record_history: false,
+            verify_margin: 0.0,
+            verify_skip: 0,
         }
     }
 

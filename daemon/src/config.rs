@@ -1,0 +1,272 @@
+//! The daemon's configuration file (TOML); `config/default.toml` is the
+//! commented default.
+
+use std::collections::HashSet;
+use std::path::Path;
+
+use flowopt_client::{MAX_COEFFS, MAX_OBSTACLES, MAX_ROBOTS, TEAM_NAME_LEN};
+use flowopt_planner::problem::{Dim, ProblemError, Spheroid, Team, Workspace};
+use nalgebra::Vector3;
+use serde::Deserialize;
+use thiserror::Error;
+
+/// Errors reading or checking a configuration.
+#[derive(Debug, Error)]
+pub enum ConfigError {
+    /// The file could not be read.
+    #[error("cannot read {path}: {source}")]
+    Io {
+        /// File path.
+        path: String,
+        /// Cause.
+        source: std::io::Error,
+    },
+    /// The file does not parse.
+    #[error("cannot parse {path}: {message}")]
+    Parse {
+        /// File path.
+        path: String,
+        /// Parser message.
+        message: String,
+    },
+    /// No `[[team]]` table.
+    #[error("the configuration has no [[team]]")]
+    NoTeams,
+    /// Two teams share a name.
+    #[error("team {0:?} is configured twice")]
+    DuplicateTeam(String),
+    /// A team that cannot be planned for.
+    #[error("team {name:?}: {message}")]
+    BadTeam {
+        /// Team name.
+        name: String,
+        /// What is wrong.
+        message: String,
+    },
+}
+
+/// The whole configuration.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DaemonConfig {
+    /// Service naming.
+    #[serde(default)]
+    pub ipc: IpcConfig,
+    /// The teams served, one `[[team]]` table each.
+    #[serde(rename = "team")]
+    pub teams: Vec<TeamConfig>,
+}
+
+/// Service naming.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct IpcConfig {
+    /// Services are `<prefix>/<team>/state` and `<prefix>/<team>/plan`.
+    #[serde(default = "default_prefix")]
+    pub prefix: String,
+}
+
+impl Default for IpcConfig {
+    fn default() -> Self {
+        Self { prefix: default_prefix() }
+    }
+}
+
+fn default_prefix() -> String {
+    "flowopt".into()
+}
+
+/// Robot size: a disc (2D) or a spheroid (3D).
+#[derive(Debug, Clone, Copy, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RobotSize {
+    /// Radius in the plane (m).
+    pub radius: f64,
+    /// Half-height along z (m, 3D); defaults to the radius.
+    pub half_height: Option<f64>,
+}
+
+/// The box robot centres stay in.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BoxConfig {
+    /// Lower corner, one entry per axis.
+    pub min: Vec<f64>,
+    /// Upper corner, one entry per axis.
+    pub max: Vec<f64>,
+}
+
+/// One team.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TeamConfig {
+    /// Name: the `<team>` of the service names (1-32 bytes, no `/`).
+    pub name: String,
+    /// 2 or 3.
+    pub dim: Dim,
+    /// Robots in the team.
+    pub robots: usize,
+    /// Their size.
+    pub robot: RobotSize,
+    /// The workspace box.
+    pub workspace: BoxConfig,
+    /// Planning horizon T (s).
+    #[serde(default = "default_horizon")]
+    pub horizon: f64,
+    /// Bernstein degree (at most 15).
+    #[serde(default = "default_degree")]
+    pub degree: usize,
+    /// Constraint samples K.
+    #[serde(default = "default_samples")]
+    pub samples: usize,
+    /// Most obstacles a snapshot may carry (factorisations are preloaded
+    /// for every count up to it).
+    #[serde(default)]
+    pub max_obstacles: usize,
+    /// Time from a snapshot's arrival by which its plan is published (ms).
+    #[serde(default = "default_deadline_ms")]
+    pub deadline_ms: f64,
+    /// 0: replan on every new snapshot; otherwise at most this often (Hz),
+    /// always from the newest snapshot.
+    #[serde(default)]
+    pub replan_hz: f64,
+    /// Report the state as stale when no snapshot arrives for this long (ms).
+    #[serde(default = "default_stale_ms")]
+    pub stale_after_ms: f64,
+}
+
+fn default_horizon() -> f64 {
+    Team::DEFAULT_HORIZON
+}
+fn default_degree() -> usize {
+    Team::DEFAULT_DEGREE
+}
+fn default_samples() -> usize {
+    Team::DEFAULT_SAMPLES
+}
+fn default_deadline_ms() -> f64 {
+    20.0
+}
+fn default_stale_ms() -> f64 {
+    500.0
+}
+
+impl TeamConfig {
+    /// The planner's description of this team.
+    pub fn team(&self) -> Result<Team, ConfigError> {
+        let bad = |message: String| ConfigError::BadTeam { name: self.name.clone(), message };
+        let axes = self.dim.axes();
+        let corner = |what: &str, v: &[f64]| {
+            if v.len() != axes {
+                return Err(bad(format!("workspace.{what} has {} entries, the team is {axes}D", v.len())));
+            }
+            let mut p = Vector3::zeros();
+            p.as_mut_slice()[..axes].copy_from_slice(v);
+            Ok(p)
+        };
+        let team = Team {
+            dim: self.dim,
+            robots: self.robots,
+            robot: Spheroid {
+                radius: self.robot.radius,
+                half_height: self.robot.half_height.unwrap_or(self.robot.radius),
+            },
+            workspace: Workspace { min: corner("min", &self.workspace.min)?, max: corner("max", &self.workspace.max)? },
+            horizon: self.horizon,
+            degree: self.degree,
+            samples: self.samples,
+        };
+        team.validate().map_err(|e: ProblemError| bad(e.to_string()))?;
+        if self.robots > MAX_ROBOTS || self.degree + 1 > MAX_COEFFS || self.max_obstacles > MAX_OBSTACLES {
+            return Err(bad(format!(
+                "messages carry at most {MAX_ROBOTS} robots, degree {} and {MAX_OBSTACLES} obstacles",
+                MAX_COEFFS - 1
+            )));
+        }
+        if self.name.is_empty() || self.name.len() > TEAM_NAME_LEN || self.name.contains(['/', '\0']) {
+            return Err(bad(format!("the name must be 1-{TEAM_NAME_LEN} bytes without '/'")));
+        }
+        let positive = |v: f64| v.is_finite() && v > 0.0;
+        if !positive(self.deadline_ms) || !positive(self.stale_after_ms) {
+            return Err(bad("deadline_ms and stale_after_ms must be positive".into()));
+        }
+        if !(self.replan_hz.is_finite() && self.replan_hz >= 0.0) {
+            return Err(bad("replan_hz must be 0 or positive".into()));
+        }
+        Ok(team)
+    }
+}
+
+impl DaemonConfig {
+    /// Reads and checks a configuration file.
+    pub fn load(path: &Path) -> Result<Self, ConfigError> {
+        let shown = path.display().to_string();
+        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Io { path: shown.clone(), source })?;
+        let config: Self =
+            toml::from_str(&text).map_err(|e| ConfigError::Parse { path: shown, message: e.to_string() })?;
+        config.check()?;
+        Ok(config)
+    }
+
+    /// Checks every team and that names are unique.
+    pub fn check(&self) -> Result<(), ConfigError> {
+        if self.teams.is_empty() {
+            return Err(ConfigError::NoTeams);
+        }
+        let mut names = HashSet::new();
+        for t in &self.teams {
+            t.team()?;
+            if !names.insert(&t.name) {
+                return Err(ConfigError::DuplicateTeam(t.name.clone()));
+            }
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const MINIMAL: &str = r#"
+        [[team]]
+        name = "a"
+        dim = 2
+        robots = 4
+        robot = { radius = 0.1 }
+        workspace = { min = [-1.0, -1.0], max = [1.0, 1.0] }
+    "#;
+
+    #[test]
+    fn the_shipped_default_config_loads() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/default.toml");
+        let config = DaemonConfig::load(&path).unwrap();
+        assert_eq!(config.ipc.prefix, "flowopt");
+        let team = config.teams[0].team().unwrap();
+        assert_eq!((team.robots, team.dim), (16, Dim::Two));
+    }
+
+    #[test]
+    fn defaults_fill_what_a_team_leaves_out() {
+        let config: DaemonConfig = toml::from_str(MINIMAL).unwrap();
+        config.check().unwrap();
+        let t = &config.teams[0];
+        assert_eq!((t.horizon, t.degree, t.samples, t.max_obstacles), (5.0, 10, 50, 0));
+        assert_eq!((t.deadline_ms, t.replan_hz, t.stale_after_ms), (20.0, 0.0, 500.0));
+    }
+
+    #[test]
+    fn bad_teams_are_refused_with_the_team_named() {
+        let bad = |from: &str, to: &str| {
+            let config: DaemonConfig = toml::from_str(&MINIMAL.replace(from, to)).unwrap();
+            config.check().unwrap_err().to_string()
+        };
+        assert!(bad("robots = 4", "robots = 65").contains("at most 64 robots"));
+        assert!(bad("radius = 0.1", "radius = -0.1").contains("team \"a\""));
+        assert!(bad("min = [-1.0, -1.0]", "min = [-1.0]").contains("workspace.min"));
+        assert!(bad("name = \"a\"", "name = \"a/b\"").contains("name"));
+        let twice: DaemonConfig = toml::from_str(&format!("{MINIMAL}{MINIMAL}")).unwrap();
+        assert!(matches!(twice.check(), Err(ConfigError::DuplicateTeam(_))));
+        assert!(toml::from_str::<DaemonConfig>(&MINIMAL.replace("robots = 4", "robots = 4\nspeed = 1")).is_err());
+    }
+}

@@ -1,0 +1,182 @@
+//! A snapshot checked against its team and turned into a planning problem,
+//! or a rejection carrying the reason code the plan message reports.
+
+use flowopt_client::{MAX_ROBOTS, Reason, StateSnapshot, WIRE_VERSION};
+use flowopt_planner::problem::{Field, Obstacle, Problem, ProblemError, Spheroid, StartState, Team};
+use nalgebra::Vector3;
+
+/// Why a snapshot cannot be planned for, as written into the plan message.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Rejection {
+    /// Reason code.
+    pub reason: Reason,
+    /// The robot (or `MAX_ROBOTS + obstacle`) at fault; `u32::MAX` if none.
+    pub index: u32,
+}
+
+impl Rejection {
+    fn new(reason: Reason) -> Self {
+        Self { reason, index: u32::MAX }
+    }
+
+    fn at(reason: Reason, index: usize) -> Self {
+        Self { reason, index: index as u32 }
+    }
+}
+
+/// Checks `snapshot` against `team` (named `name`, admitting up to
+/// `max_obstacles`) and builds the problem, starting at rest acceleration.
+pub fn problem_from(
+    snapshot: &StateSnapshot,
+    team: &Team,
+    name: &str,
+    max_obstacles: usize,
+) -> Result<Problem, Rejection> {
+    if snapshot.version != WIRE_VERSION {
+        return Err(Rejection::new(Reason::Version));
+    }
+    if snapshot.team_name().ok() != Some(name) {
+        return Err(Rejection::new(Reason::Team));
+    }
+    if snapshot.dim as usize != team.dim.axes() {
+        return Err(Rejection::new(Reason::Dimension));
+    }
+    if snapshot.robots as usize != team.robots {
+        return Err(Rejection::new(Reason::RobotCount));
+    }
+    let obstacles = snapshot.obstacles as usize;
+    if obstacles > max_obstacles {
+        return Err(Rejection::new(Reason::ObstacleCount));
+    }
+    let v = |a: &[f64; 3]| Vector3::from(*a);
+    let robots = &snapshot.robot[..team.robots];
+    let problem = Problem {
+        team: team.clone(),
+        starts: robots
+            .iter()
+            .map(|r| StartState { position: v(&r.position), velocity: v(&r.velocity), acceleration: Vector3::zeros() })
+            .collect(),
+        goals: robots.iter().map(|r| v(&r.goal)).collect(),
+        obstacles: snapshot.obstacle[..obstacles]
+            .iter()
+            .map(|o| Obstacle {
+                position: v(&o.position),
+                velocity: v(&o.velocity),
+                shape: Spheroid { radius: o.radius, half_height: o.half_height },
+            })
+            .collect(),
+    };
+    let mut problem = problem;
+    if team.dim.axes() == 2 {
+        // The third entries are ignored in 2D; keep them out of the plan.
+        for s in &mut problem.starts {
+            s.position.z = 0.0;
+            s.velocity.z = 0.0;
+        }
+        problem.goals.iter_mut().for_each(|g| g.z = 0.0);
+        for o in &mut problem.obstacles {
+            o.position.z = 0.0;
+            o.velocity.z = 0.0;
+            o.shape.half_height = o.shape.radius;
+        }
+    }
+    problem.validate().map_err(|e| rejection_of(&e))?;
+    Ok(problem)
+}
+
+/// The reason code of a validation error.
+pub fn rejection_of(error: &ProblemError) -> Rejection {
+    use ProblemError as E;
+    match *error {
+        E::NonFinite { field, index } => match field {
+            Field::ObstaclePosition | Field::ObstacleVelocity | Field::ObstacleSize => {
+                Rejection::at(Reason::NonFinite, MAX_ROBOTS + index)
+            }
+            _ => Rejection::at(Reason::NonFinite, index),
+        },
+        E::NonPositive(_) => Rejection::new(Reason::NonPositiveSize),
+        E::StartsOverlap { i, .. } => Rejection::at(Reason::StartsOverlap, i),
+        E::GoalsOverlap { i, .. } => Rejection::at(Reason::GoalsOverlap, i),
+        E::StartInObstacle { robot, .. } => Rejection::at(Reason::StartInObstacle, robot),
+        E::GoalInObstacle { robot, .. } => Rejection::at(Reason::GoalInObstacle, robot),
+        E::StartOutsideWorkspace(i) => Rejection::at(Reason::StartOutsideWorkspace, i),
+        E::GoalOutsideWorkspace(i) => Rejection::at(Reason::GoalOutsideWorkspace, i),
+        E::WrongCount { .. } | E::NoRobots => Rejection::new(Reason::RobotCount),
+        E::BadDimension(_) => Rejection::new(Reason::Dimension),
+        E::EmptyWorkspace { .. } | E::Basis(_) => Rejection::new(Reason::Solver),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use flowopt_planner::problem::Dim;
+    use flowopt_planner::scenario::RandomScenario;
+
+    /// A valid snapshot of a random 4-robot instance, with one obstacle.
+    fn valid() -> (Team, StateSnapshot) {
+        let team = Team::default_for(Dim::Two, 4);
+        let p = RandomScenario::new(team.clone()).with_obstacles(1).generate(2).unwrap();
+        let mut s = StateSnapshot::new();
+        s.set_team("t").unwrap();
+        s.dim = 2;
+        s.robots = 4;
+        for i in 0..4 {
+            s.robot[i].position = p.starts[i].position.into();
+            s.robot[i].goal = p.goals[i].into();
+        }
+        s.obstacles = 1;
+        let o = &p.obstacles[0];
+        s.obstacle[0].position = o.position.into();
+        s.obstacle[0].radius = o.shape.radius;
+        s.obstacle[0].half_height = o.shape.half_height;
+        (team, s)
+    }
+
+    fn check(s: &StateSnapshot, team: &Team) -> Result<Problem, Rejection> {
+        problem_from(s, team, "t", 2)
+    }
+
+    #[test]
+    fn a_valid_snapshot_becomes_its_problem() {
+        let (team, s) = valid();
+        let p = check(&s, &team).unwrap();
+        assert_eq!(p.starts[3].position, Vector3::from(s.robot[3].position));
+        assert_eq!(p.obstacles.len(), 1);
+    }
+
+    #[test]
+    fn every_malformed_kind_gets_its_reason() {
+        let (team, good) = valid();
+        type Edit = Box<dyn Fn(&mut StateSnapshot)>;
+        let cases: Vec<(Edit, Reason, u32)> = vec![
+            (Box::new(|s| s.version = 99), Reason::Version, u32::MAX),
+            (Box::new(|s| s.set_team("other").unwrap()), Reason::Team, u32::MAX),
+            (Box::new(|s| s.dim = 3), Reason::Dimension, u32::MAX),
+            (Box::new(|s| s.robots = 65), Reason::RobotCount, u32::MAX),
+            (Box::new(|s| s.obstacles = 3), Reason::ObstacleCount, u32::MAX),
+            (Box::new(|s| s.robot[2].velocity[1] = f64::NAN), Reason::NonFinite, 2),
+            (Box::new(|s| s.obstacle[0].position[0] = f64::INFINITY), Reason::NonFinite, MAX_ROBOTS as u32),
+            (Box::new(|s| s.obstacle[0].radius = 0.0), Reason::NonPositiveSize, u32::MAX),
+            (Box::new(|s| s.robot[1].position = s.robot[0].position), Reason::StartsOverlap, 0),
+            (Box::new(|s| s.robot[1].goal = s.robot[0].goal), Reason::GoalsOverlap, 0),
+            (Box::new(|s| s.robot[3].goal = [0.0, 5.0, 0.0]), Reason::GoalOutsideWorkspace, 3),
+            (Box::new(|s| s.robot[3].position = [-3.0, 0.0, 0.0]), Reason::StartOutsideWorkspace, 3),
+            (Box::new(|s| s.obstacle[0].position = s.robot[2].position), Reason::StartInObstacle, 2),
+        ];
+        for (break_it, reason, index) in cases {
+            let mut s = good;
+            break_it(&mut s);
+            assert_eq!(check(&s, &team).unwrap_err(), Rejection { reason, index }, "{reason:?}");
+        }
+    }
+
+    #[test]
+    fn the_third_entries_are_ignored_in_2d() {
+        let (team, mut s) = valid();
+        s.robot[0].position[2] = f64::NAN;
+        s.robot[0].goal[2] = 7.0;
+        let p = check(&s, &team).unwrap();
+        assert_eq!((p.starts[0].position.z, p.goals[0].z), (0.0, 0.0));
+    }
+}

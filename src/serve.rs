@@ -1,0 +1,28 @@
+//! `flowopt serve`: the planning daemon.
+
+use std::sync::Arc;
+use std::sync::atomic::AtomicBool;
+
+use anyhow::{Context, Result};
+use clap::Args;
+use signal_hook::consts::{SIGINT, SIGTERM};
+
+use crate::daemon_args::DaemonArgs;
+
+/// Run the daemon.
+#[derive(Debug, Args)]
+pub struct ServeArgs {
+    #[command(flatten)]
+    daemon: DaemonArgs,
+}
+
+/// Runs `flowopt serve` until SIGINT or SIGTERM.
+pub fn run(args: ServeArgs) -> Result<()> {
+    let config = args.daemon.load()?;
+    let shutdown = Arc::new(AtomicBool::new(false));
+    for signal in [SIGINT, SIGTERM] {
+        signal_hook::flag::register(signal, Arc::clone(&shutdown)).context("cannot install the signal handlers")?;
+    }
+    flowopt_daemon::serve(&config, shutdown)?;
+    Ok(())
+}
