@@ -204,7 +204,8 @@ pub struct JointTrajectory {
     pub horizon: f64,
     /// Primal residual of the plan at the (inflated) constraint samples (m).
     pub primal_residual: f64,
-    /// Smoothness: integrated squared acceleration over the horizon.
+    /// Smoothness: mean over robots of the summed squared acceleration at
+    /// the K samples (m^2/s^4), as `flowopt_planner::metrics`.
     pub smoothness: f64,
     /// 1 when warm-started from the previous plan, 0 for a cold plan.
     pub warm_started: u32,

@@ -127,7 +127,7 @@ impl Metrics {
             }
         }
         Self {
-            smoothness: smoothness / n as f64,
+            smoothness,
             arc_length: arc_length / n as f64,
             min_robot_scaled,
             min_obstacle_scaled,

@@ -65,10 +65,10 @@ impl JointPlan {
             .collect()
     }
 
-    /// Smoothness: the sum over robots and `samples` evenly spaced instants
-    /// of the squared acceleration (m^2/s^4).
+    /// Smoothness: the mean over robots of the sum over `samples` evenly
+    /// spaced instants of the squared acceleration (m^2/s^4).
     pub fn smoothness(&self, samples: usize) -> f64 {
-        self.sampled(samples, 2).iter().map(|a| a * a).sum()
+        self.sampled(samples, 2).iter().map(|a| a * a).sum::<f64>() / self.robots as f64
     }
 
     /// The `order`-th time derivative (physical units) of every robot at
