@@ -8,10 +8,9 @@
 //! zeroed message says "version 0, no plan": the ports zero each loan
 //! before the caller fills it.
 
-use flowopt_planner::plan::{JointPlan, Kinematics};
+use flowopt_planner::plan::{InstantRows, JointPlan, Kinematics};
 use flowopt_planner::problem::{Dim, Team};
 use iceoryx2::prelude::ZeroCopySend;
-use nalgebra::Vector3;
 
 use crate::ports::ClientError;
 
@@ -217,11 +216,18 @@ pub struct JointTrajectory {
     pub coeffs: [[[f64; MAX_COEFFS]; 3]; MAX_ROBOTS],
 }
 
-/// Writes `name` NUL-padded into `out`.
-fn write_name(out: &mut [u8; TEAM_NAME_LEN], name: &str) -> Result<(), ClientError> {
-    if name.is_empty() || name.len() > TEAM_NAME_LEN || name.contains('\0') {
+/// Checks that `name` can name a team: 1 to [`TEAM_NAME_LEN`] bytes, no
+/// `/` (it is a segment of the service names) and no NUL (the padding).
+pub fn check_team_name(name: &str) -> Result<(), ClientError> {
+    if name.is_empty() || name.len() > TEAM_NAME_LEN || name.contains(['/', '\0']) {
         return Err(ClientError::TeamName(name.to_string()));
     }
+    Ok(())
+}
+
+/// Writes `name` NUL-padded into `out`.
+fn write_name(out: &mut [u8; TEAM_NAME_LEN], name: &str) -> Result<(), ClientError> {
+    check_team_name(name)?;
     *out = [0; TEAM_NAME_LEN];
     out[..name.len()].copy_from_slice(name.as_bytes());
     Ok(())
@@ -365,16 +371,8 @@ impl JointTrajectory {
         if robot >= robots {
             return Err(ClientError::RobotOutOfRange { robot, robots });
         }
-        let tau = (t / self.horizon).clamp(0.0, 1.0);
-        let mut k = [Vector3::zeros(); 3];
-        let scale = [1.0, 1.0 / self.horizon, 1.0 / (self.horizon * self.horizon)];
-        for (order, v) in k.iter_mut().enumerate() {
-            let row = flowopt_planner::basis::bernstein_row(nx - 1, order, tau);
-            for a in 0..dim.axes() {
-                v[a] = row.iter().zip(&self.coeffs[robot][a][..nx]).map(|(b, c)| b * c).sum::<f64>() * scale[order];
-            }
-        }
-        Ok(Kinematics { position: k[0], velocity: k[1], acceleration: k[2] })
+        let rows = InstantRows::new(nx - 1, self.horizon, t);
+        Ok(rows.kinematics(dim.axes(), |a| &self.coeffs[robot][a][..nx]))
     }
 
     /// Whether this message's shape fits `team`.

@@ -46,7 +46,7 @@ pub enum ClientError {
     #[error("invalid service name {0:?}")]
     ServiceName(String),
     /// A team name that does not fit a message.
-    #[error("team name {0:?} must be 1-32 bytes of UTF-8 without NUL")]
+    #[error("team name {0:?} must be 1-32 bytes of UTF-8 without '/' or NUL")]
     TeamName(String),
     /// Sampling a message that carries no plan.
     #[error("the message carries no plan (status {0:?})")]
@@ -94,9 +94,7 @@ impl TeamChannel {
             let s = format!("{prefix}/{team}/{suffix}");
             ServiceName::new(&s).map_err(|_| ClientError::ServiceName(s))
         };
-        if team.is_empty() || team.len() > crate::TEAM_NAME_LEN || team.contains(['/', '\0']) {
-            return Err(ClientError::TeamName(team.to_string()));
-        }
+        crate::messages::check_team_name(team)?;
         Ok(Self {
             team: team.to_string(),
             state: name("state")?,

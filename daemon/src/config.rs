@@ -4,9 +4,10 @@
 use std::collections::HashSet;
 use std::path::Path;
 
-use flowopt_client::{MAX_COEFFS, MAX_OBSTACLES, MAX_ROBOTS, TEAM_NAME_LEN};
-use flowopt_planner::problem::{Dim, ProblemError, Spheroid, Team, Workspace};
-use nalgebra::Vector3;
+use flowopt_client::messages::check_team_name;
+use flowopt_client::{MAX_COEFFS, MAX_OBSTACLES, MAX_ROBOTS};
+use flowopt_planner::problem::{Dim, ProblemError, Team};
+use flowopt_planner::scenario::{FileBox, FileShape};
 use serde::Deserialize;
 use thiserror::Error;
 
@@ -76,26 +77,6 @@ fn default_prefix() -> String {
     "flowopt".into()
 }
 
-/// Robot size: a disc (2D) or a spheroid (3D).
-#[derive(Debug, Clone, Copy, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct RobotSize {
-    /// Radius in the plane (m).
-    pub radius: f64,
-    /// Half-height along z (m, 3D); defaults to the radius.
-    pub half_height: Option<f64>,
-}
-
-/// The box robot centres stay in.
-#[derive(Debug, Clone, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct BoxConfig {
-    /// Lower corner, one entry per axis.
-    pub min: Vec<f64>,
-    /// Upper corner, one entry per axis.
-    pub max: Vec<f64>,
-}
-
 /// One team.
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -106,10 +87,11 @@ pub struct TeamConfig {
     pub dim: Dim,
     /// Robots in the team.
     pub robots: usize,
-    /// Their size.
-    pub robot: RobotSize,
-    /// The workspace box.
-    pub workspace: BoxConfig,
+    /// Their size: a disc (2D) or a spheroid (3D, `half_height` defaults
+    /// to the radius).
+    pub robot: FileShape,
+    /// The box robot centres stay in, one entry per axis per corner.
+    pub workspace: FileBox,
     /// Planning horizon T (s).
     #[serde(default = "default_horizon")]
     pub horizon: f64,
@@ -155,23 +137,11 @@ impl TeamConfig {
     /// The planner's description of this team.
     pub fn team(&self) -> Result<Team, ConfigError> {
         let bad = |message: String| ConfigError::BadTeam { name: self.name.clone(), message };
-        let axes = self.dim.axes();
-        let corner = |what: &str, v: &[f64]| {
-            if v.len() != axes {
-                return Err(bad(format!("workspace.{what} has {} entries, the team is {axes}D", v.len())));
-            }
-            let mut p = Vector3::zeros();
-            p.as_mut_slice()[..axes].copy_from_slice(v);
-            Ok(p)
-        };
         let team = Team {
             dim: self.dim,
             robots: self.robots,
-            robot: Spheroid {
-                radius: self.robot.radius,
-                half_height: self.robot.half_height.unwrap_or(self.robot.radius),
-            },
-            workspace: Workspace { min: corner("min", &self.workspace.min)?, max: corner("max", &self.workspace.max)? },
+            robot: self.robot.spheroid(),
+            workspace: self.workspace.workspace(self.dim).map_err(|e| bad(e.to_string()))?,
             horizon: self.horizon,
             degree: self.degree,
             samples: self.samples,
@@ -183,9 +153,7 @@ impl TeamConfig {
                 MAX_COEFFS - 1
             )));
         }
-        if self.name.is_empty() || self.name.len() > TEAM_NAME_LEN || self.name.contains(['/', '\0']) {
-            return Err(bad(format!("the name must be 1-{TEAM_NAME_LEN} bytes without '/'")));
-        }
+        check_team_name(&self.name).map_err(|e| bad(e.to_string()))?;
         let positive = |v: f64| v.is_finite() && v > 0.0;
         if !positive(self.deadline_ms) || !positive(self.stale_after_ms) {
             return Err(bad("deadline_ms and stale_after_ms must be positive".into()));

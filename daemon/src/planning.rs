@@ -139,7 +139,8 @@ pub struct TeamPlanner {
     previous: Option<Previous>,
 }
 
-fn us(d: Duration) -> u32 {
+/// Microseconds, saturating at `u32::MAX`.
+pub(crate) fn us(d: Duration) -> u32 {
     d.as_micros().min(u32::MAX as u128) as u32
 }
 
@@ -203,13 +204,10 @@ impl TeamPlanner {
         let mut warm_result = None;
         if let Some(previous) = self.warm_candidate(&problem, snapshot.timestamp_ns) {
             let t = Instant::now();
-            let (xi, start_acc) = {
+            let xi = {
                 let _span = info_span!("warm_start").entered();
-                self.shifted(previous, &problem, snapshot.timestamp_ns)
+                self.shifted(previous, &mut problem, snapshot.timestamp_ns)
             };
-            for (s, a) in problem.starts.iter_mut().zip(start_acc) {
-                s.acceleration = a;
-            }
             timings.warm_start_us = us(t.elapsed());
             let t = Instant::now();
             let outcome = {
@@ -293,14 +291,16 @@ impl TeamPlanner {
         (same_goals && fresh && p.obstacles == problem.obstacles.len()).then_some(p)
     }
 
-    /// The previous plan shifted to start at `origin_ns`, fitted under the
-    /// new boundary conditions, and the start accelerations it implies.
-    fn shifted(&self, previous: &Previous, problem: &Problem, origin_ns: u64) -> (Vec<f64>, Vec<Vector3<f64>>) {
+    /// The previous plan shifted to start at `origin_ns` and fitted under
+    /// the new boundary conditions, which take their start accelerations
+    /// from it (written into `problem`).
+    fn shifted(&self, previous: &Previous, problem: &mut Problem, origin_ns: u64) -> Vec<f64> {
         let team = &self.team;
         let (axes, n, nx, k) = (team.dim.axes(), team.robots, team.degree + 1, team.samples);
         let dt = (origin_ns - previous.origin_ns) as f64 * 1e-9;
-        let start = previous.plan.at(dt);
-        let acc: Vec<Vector3<f64>> = start.iter().map(|s| s.acceleration).collect();
+        for (s, kin) in problem.starts.iter_mut().zip(previous.plan.at(dt)) {
+            s.acceleration = kin.acceleration;
+        }
         let mut series = vec![vec![0.0; k]; axes * n];
         for s in 0..k {
             let t = dt + team.horizon * s as f64 / (k - 1) as f64;
@@ -311,17 +311,11 @@ impl TeamPlanner {
             }
         }
         let mut xi = vec![0.0; axes * n * nx];
-        let h = team.horizon;
-        for a in 0..axes {
-            for i in 0..n {
-                let st = &problem.starts[i];
-                let b: [f64; BOUNDARY_ROWS] =
-                    [st.position[a], st.velocity[a] * h, acc[i][a] * h * h, problem.goals[i][a], 0.0, 0.0];
-                let row = a * n + i;
-                self.fitter.fit(&series[row], &b, &mut xi[row * nx..(row + 1) * nx]);
-            }
+        let boundary = problem.boundary_values();
+        for (row, b) in boundary.chunks_exact(BOUNDARY_ROWS).enumerate() {
+            self.fitter.fit(&series[row], b, &mut xi[row * nx..(row + 1) * nx]);
         }
-        (xi, acc)
+        xi
     }
 }
 

@@ -9,7 +9,7 @@ use flowopt_client::{ClientError, Endpoint, PlanPublisher, PlanStatus, Reason, S
 use tracing::{debug, info, info_span, warn};
 
 use crate::config::TeamConfig;
-use crate::planning::TeamPlanner;
+use crate::planning::{TeamPlanner, us};
 
 /// A snapshot handed from the WaitSet thread to a worker.
 #[derive(Debug)]
@@ -76,12 +76,12 @@ fn answer(planner: &mut TeamPlanner, publisher: &PlanPublisher, job: &Job) {
     let s = &job.snapshot;
     let span = info_span!("plan", sequence = s.sequence);
     let _entered = span.enter();
-    let queue_us = job.received.elapsed().as_micros() as u32;
+    let queue_us = us(job.received.elapsed());
     let mut planned = planner.plan(s, job.received);
     planned.timings.queue_us = queue_us;
     let _publish = info_span!("publish").entered();
     let result = publisher.publish_with(|msg| {
-        planned.timings.total_us = job.received.elapsed().as_micros() as u32;
+        planned.timings.total_us = us(job.received.elapsed());
         planned.write(msg);
         msg.answers_sequence = s.sequence;
         msg.state_timestamp_ns = s.timestamp_ns;

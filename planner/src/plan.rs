@@ -17,6 +17,40 @@ pub struct Kinematics {
     pub acceleration: Vector3<f64>,
 }
 
+/// The Bernstein rows of position, velocity and acceleration at one
+/// instant of a plan: evaluates any robot's coefficients there.
+#[derive(Debug, Clone)]
+pub struct InstantRows {
+    rows: [Vec<f64>; 3],
+    /// Time-derivative scales `1, 1/T, 1/T^2`.
+    scale: [f64; 3],
+}
+
+impl InstantRows {
+    /// The rows of `degree` at `t` seconds into a plan over `horizon`
+    /// (clamped to `[0, horizon]`).
+    pub fn new(degree: usize, horizon: f64, t: f64) -> Self {
+        let tau = (t / horizon).clamp(0.0, 1.0);
+        Self {
+            rows: [0, 1, 2].map(|order| bernstein_row(degree, order, tau)),
+            scale: [1.0, 1.0 / horizon, 1.0 / (horizon * horizon)],
+        }
+    }
+
+    /// The kinematics of one robot whose coefficients along axis `a` are
+    /// `coefficients(a)`, for `axes` axes.
+    pub fn kinematics<'c>(&self, axes: usize, coefficients: impl Fn(usize) -> &'c [f64]) -> Kinematics {
+        let mut v = [Vector3::zeros(); 3];
+        for a in 0..axes {
+            let c = coefficients(a);
+            for order in 0..3 {
+                v[order][a] = self.rows[order].iter().zip(c).map(|(b, x)| b * x).sum::<f64>() * self.scale[order];
+            }
+        }
+        Kinematics { position: v[0], velocity: v[1], acceleration: v[2] }
+    }
+}
+
 /// The trajectories of a whole team.
 #[derive(Debug, Clone, PartialEq)]
 pub struct JointPlan {
@@ -48,21 +82,8 @@ impl JointPlan {
 
     /// Every robot's kinematics at `t` seconds (clamped to `[0, T]`).
     pub fn at(&self, t: f64) -> Vec<Kinematics> {
-        let tau = (t / self.horizon).clamp(0.0, 1.0);
-        let rows = [0, 1, 2].map(|order| bernstein_row(self.degree, order, tau));
-        let scale = [1.0, 1.0 / self.horizon, 1.0 / (self.horizon * self.horizon)];
-        (0..self.robots)
-            .map(|i| {
-                let mut v = [Vector3::zeros(); 3];
-                for a in 0..self.dim.axes() {
-                    let c = self.coefficients(a, i);
-                    for order in 0..3 {
-                        v[order][a] = rows[order].iter().zip(c).map(|(b, x)| b * x).sum::<f64>() * scale[order];
-                    }
-                }
-                Kinematics { position: v[0], velocity: v[1], acceleration: v[2] }
-            })
-            .collect()
+        let rows = InstantRows::new(self.degree, self.horizon, t);
+        (0..self.robots).map(|i| rows.kinematics(self.dim.axes(), |a| self.coefficients(a, i))).collect()
     }
 
     /// Smoothness: the mean over robots of the sum over `samples` evenly

@@ -26,7 +26,7 @@ use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
-use crate::basis::{Basis, BasisError};
+use crate::basis::{BOUNDARY_ROWS, Basis, BasisError};
 
 /// Relative tolerance on every clearance: a plan is feasible when every
 /// scaled distance is at least `1 - FEASIBILITY_TOLERANCE` (1% of the
@@ -387,6 +387,28 @@ impl Problem {
     /// Number of robots.
     pub fn robots(&self) -> usize {
         self.team.robots
+    }
+
+    /// The values of the boundary rows ([`crate::basis::Basis::boundary_rows`])
+    /// per axis and robot, `[axis][robot][6]`: start position, velocity and
+    /// acceleration, goal, and rest, in normalised time.
+    pub fn boundary_values(&self) -> Vec<f64> {
+        let t = &self.team;
+        let n = t.robots;
+        let mut b = vec![0.0; t.dim.axes() * n * BOUNDARY_ROWS];
+        for (row, chunk) in b.chunks_exact_mut(BOUNDARY_ROWS).enumerate() {
+            let (a, i) = (row / n, row % n);
+            let s = &self.starts[i];
+            chunk.copy_from_slice(&[
+                s.position[a],
+                s.velocity[a] * t.horizon,
+                s.acceleration[a] * t.horizon * t.horizon,
+                self.goals[i][a],
+                0.0,
+                0.0,
+            ]);
+        }
+        b
     }
 
     /// Checks every input: counts, finiteness, sizes, overlaps and the

@@ -295,6 +295,24 @@ pub struct FileShape {
     pub half_height: Option<f64>,
 }
 
+impl FileShape {
+    /// The spheroid it describes.
+    pub fn spheroid(&self) -> Spheroid {
+        Spheroid { radius: self.radius, half_height: self.half_height.unwrap_or(self.radius) }
+    }
+}
+
+/// A point of a `dim`-dimensional scenario given as a list of coordinates.
+fn point(dim: Dim, what: String, v: &[f64]) -> Result<Vector3<f64>, ScenarioError> {
+    let d = dim.axes();
+    if v.len() != d {
+        return Err(ScenarioError::BadPoint { what, got: v.len(), dim: d });
+    }
+    let mut p = Vector3::zeros();
+    p.as_mut_slice()[..d].copy_from_slice(v);
+    Ok(p)
+}
+
 /// The workspace box in a scenario file.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -303,6 +321,16 @@ pub struct FileBox {
     pub min: Vec<f64>,
     /// Upper corner.
     pub max: Vec<f64>,
+}
+
+impl FileBox {
+    /// The box of a `dim`-dimensional team.
+    pub fn workspace(&self, dim: Dim) -> Result<Workspace, ScenarioError> {
+        Ok(Workspace {
+            min: point(dim, "workspace.min".into(), &self.min)?,
+            max: point(dim, "workspace.max".into(), &self.max)?,
+        })
+    }
 }
 
 /// One robot in a scenario file.
@@ -359,15 +387,8 @@ impl ScenarioFile {
 
     /// Converts to a validated problem.
     pub fn into_problem(self) -> Result<Problem, ScenarioError> {
-        let d = self.dim.axes();
-        let point = |what: String, v: &[f64]| -> Result<Vector3<f64>, ScenarioError> {
-            if v.len() != d {
-                return Err(ScenarioError::BadPoint { what, got: v.len(), dim: d });
-            }
-            let mut p = Vector3::zeros();
-            p.as_mut_slice()[..d].copy_from_slice(v);
-            Ok(p)
-        };
+        let dim = self.dim;
+        let point = |what: String, v: &[f64]| point(dim, what, v);
         let optional = |what: String, v: &Option<Vec<f64>>| match v {
             Some(v) => point(what, v),
             None => Ok(Vector3::zeros()),
@@ -375,14 +396,8 @@ impl ScenarioFile {
         let team = Team {
             dim: self.dim,
             robots: self.robots.len(),
-            robot: Spheroid {
-                radius: self.robot.radius,
-                half_height: self.robot.half_height.unwrap_or(self.robot.radius),
-            },
-            workspace: Workspace {
-                min: point("workspace.min".into(), &self.workspace.min)?,
-                max: point("workspace.max".into(), &self.workspace.max)?,
-            },
+            robot: self.robot.spheroid(),
+            workspace: self.workspace.workspace(dim)?,
             horizon: self.horizon,
             degree: self.degree,
             samples: self.samples,

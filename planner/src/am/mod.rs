@@ -265,7 +265,6 @@ impl Engine {
             .collect::<Result<Vec<_>, KktError>>()?;
         let cold = SmallKkt::new(&cost, &boundary, n_xi)?;
         let fitter = Fitter::new(&basis)?;
-        let boundary_rows = basis.boundary_rows();
         Ok(Self {
             team: team.clone(),
             obstacles,
@@ -278,7 +277,7 @@ impl Engine {
             levels,
             cold,
             fitter,
-            boundary_rows,
+            boundary_rows: boundary,
         })
     }
 
@@ -330,19 +329,7 @@ impl Engine {
         }
         let dim = t.dim.axes();
         let n = t.robots;
-        let mut b = vec![0.0; dim * n * BOUNDARY_ROWS];
-        for (row, chunk) in b.chunks_exact_mut(BOUNDARY_ROWS).enumerate() {
-            let (a, i) = (row / n, row % n);
-            let s = &problem.starts[i];
-            chunk.copy_from_slice(&[
-                s.position[a],
-                s.velocity[a] * t.horizon,
-                s.acceleration[a] * t.horizon * t.horizon,
-                problem.goals[i][a],
-                0.0,
-                0.0,
-            ]);
-        }
+        let b = problem.boundary_values();
         let beta = self
             .levels
             .iter()
