@@ -10,7 +10,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use serde::Serialize;
 
 use crate::instances::InstanceArgs;
-use crate::methods::{Method, Planner, Record};
+use crate::methods::{LearnedArgs, Method, Planner, Record, plan_distance};
 use crate::solve::EngineArgs;
 use crate::stats::{mean, quantile};
 
@@ -27,6 +27,13 @@ pub struct BenchArgs {
     problems: u64,
     #[command(flatten)]
     engine: EngineArgs,
+    #[command(flatten)]
+    learned: LearnedArgs,
+    /// Learned methods: also plan every instance with this many noise seeds
+    /// (untimed) and report the mean pairwise distance between the verified
+    /// plans (diversity).
+    #[arg(long, default_value_t = 0)]
+    diversity: usize,
     /// Print one JSON object instead of text.
     #[arg(long)]
     json: bool,
@@ -64,6 +71,20 @@ pub struct Summary {
     pub mean_iterations: f64,
     /// Median AM iterations, all instances.
     pub median_iterations: f64,
+    /// Mean iterations to primal residual 0.01 m of the same start, over
+    /// the instances that reached it (see `Record::iterations_to_0_01`).
+    pub mean_iterations_to_0_01: f64,
+    /// Fraction of instances whose study reached 0.01 m.
+    pub reached_0_01: f64,
+    /// The same to 0.001 m.
+    pub mean_iterations_to_0_001: f64,
+    /// Fraction of instances whose study reached 0.001 m.
+    pub reached_0_001: f64,
+    /// Median stage times of the learned pipeline (ms).
+    pub median_stages_ms: Option<serde_json::Value>,
+    /// Mean pairwise RMS distance (m) between verified plans of one problem
+    /// from different noise seeds (`--diversity`).
+    pub mean_pairwise_distance_m: Option<f64>,
 }
 
 #[derive(Serialize)]
@@ -75,7 +96,8 @@ struct InstanceLine<'a> {
 
 /// Runs `flowopt bench`.
 pub fn run(args: BenchArgs) -> Result<()> {
-    let mut planner = Planner::new(args.engine.overrides());
+    let mut planner = Planner::new(args.engine.overrides(), Some(args.learned.clone()));
+    let mut distances = Vec::new();
     let mut out = match &args.per_instance {
         Some(path) => Some(std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?),
         None => None,
@@ -88,6 +110,20 @@ pub fn run(args: BenchArgs) -> Result<()> {
         let problem = args.instance.instance(index)?;
         let seed = args.instance.seed + index;
         let record = planner.run(args.method, &problem, seed)?;
+        if args.diversity > 1 && matches!(args.method, Method::Flowopt | Method::FlowNoInit) {
+            let mut plans = Vec::new();
+            for k in 0..args.diversity as u64 {
+                let (out, _) = planner.plan_learned(args.method, &problem, seed + 1_000_003 * (k + 1))?;
+                if out.verified {
+                    plans.push(out.xi().to_vec());
+                }
+            }
+            for a in 0..plans.len() {
+                for b in a + 1..plans.len() {
+                    distances.push(plan_distance(&problem.team, &plans[a], &plans[b]));
+                }
+            }
+        }
         if let Some(file) = out.as_mut() {
             writeln!(file, "{}", serde_json::to_string(&InstanceLine { seed, record: &record })?)?;
         }
@@ -115,6 +151,12 @@ pub fn run(args: BenchArgs) -> Result<()> {
         mean_arc_length: mean(&successes.iter().map(|r| r.arc_length).collect::<Vec<_>>()),
         mean_iterations: mean(&iterations),
         median_iterations: quantile(&iterations, 0.5),
+        mean_iterations_to_0_01: mean(&reached(&records, |r| r.iterations_to_0_01)),
+        reached_0_01: reached(&records, |r| r.iterations_to_0_01).len() as f64 / records.len().max(1) as f64,
+        mean_iterations_to_0_001: mean(&reached(&records, |r| r.iterations_to_0_001)),
+        reached_0_001: reached(&records, |r| r.iterations_to_0_001).len() as f64 / records.len().max(1) as f64,
+        median_stages_ms: stage_medians(&records),
+        mean_pairwise_distance_m: (!distances.is_empty()).then(|| mean(&distances)),
     };
     if args.json {
         println!("{}", serde_json::to_string(&summary)?);
@@ -133,8 +175,45 @@ pub fn run(args: BenchArgs) -> Result<()> {
         println!("success rate     {:.1}%", 100.0 * summary.success_rate);
         println!("time             median {:.2} ms, p95 {:.2} ms", summary.median_ms, summary.p95_ms);
         println!("iterations       mean {:.1}, median {}", summary.mean_iterations, summary.median_iterations);
+        println!(
+            "to primal 0.01   mean {:.1} iterations ({:.0}% reached); 0.001: mean {:.1} ({:.0}% reached)",
+            summary.mean_iterations_to_0_01,
+            100.0 * summary.reached_0_01,
+            summary.mean_iterations_to_0_001,
+            100.0 * summary.reached_0_001
+        );
+        if let Some(stages) = &summary.median_stages_ms {
+            println!("stages (median)  {stages}");
+        }
+        if let Some(d) = summary.mean_pairwise_distance_m {
+            println!("diversity        mean pairwise distance {d:.4} m");
+        }
         println!("smoothness       mean {:.4} m^2/s^4 (successes)", summary.mean_smoothness);
         println!("arc length       mean {:.4} m (successes)", summary.mean_arc_length);
     }
     Ok(())
+}
+
+/// The iteration counts of the instances whose study reached a level.
+fn reached(records: &[Record], f: impl Fn(&Record) -> Option<usize>) -> Vec<f64> {
+    records.iter().filter_map(|r| f(r).map(|i| i as f64)).collect()
+}
+
+/// Median of every pipeline stage time, when the records have them.
+fn stage_medians(records: &[Record]) -> Option<serde_json::Value> {
+    let stages: Vec<_> = records.iter().filter_map(|r| r.stages).collect();
+    if stages.is_empty() {
+        return None;
+    }
+    let median = |f: &dyn Fn(&flowopt_models::pipeline::StageTimes) -> f64| {
+        quantile(&stages.iter().map(f).collect::<Vec<_>>(), 0.5)
+    };
+    Some(serde_json::json!({
+        "sample": median(&|s| s.sample_ms),
+        "rank": median(&|s| s.rank_ms),
+        "init": median(&|s| s.init_ms),
+        "filter": median(&|s| s.filter_ms),
+        "select": median(&|s| s.select_ms),
+        "total": median(&|s| s.total_ms),
+    }))
 }

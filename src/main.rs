@@ -5,6 +5,7 @@
 mod bench;
 mod bench_ipc;
 mod daemon_args;
+mod datagen;
 mod demo;
 mod instances;
 mod methods;
@@ -12,6 +13,7 @@ mod serve;
 mod sim;
 mod solve;
 mod stats;
+mod train;
 
 use std::path::PathBuf;
 
@@ -45,9 +47,14 @@ enum Command {
     Bench(bench::BenchArgs),
     /// Measure the round trip of a snapshot and a plan between two processes.
     BenchIpc(bench_ipc::BenchIpcArgs),
+    /// Generate training data with the from-scratch optimiser.
+    Datagen(datagen::DatagenArgs),
+    /// Train the flow policy or the SF initialiser.
+    Train(train::TrainArgs),
 }
 
 fn main() -> Result<()> {
+    flowopt_models::runtime::configure();
     let cli = Cli::parse();
     // Logs: RUST_LOG, or warnings plus the daemon's and simulator's
     // progress. The trace, if asked for, records every span at INFO.
@@ -70,5 +77,7 @@ fn main() -> Result<()> {
         Command::Solve(args) => solve::run(args),
         Command::Bench(args) => bench::run(args),
         Command::BenchIpc(args) => bench_ipc::run(args),
+        Command::Datagen(args) => datagen::run(args),
+        Command::Train(args) => train::run(args),
     }
 }

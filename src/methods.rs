@@ -5,8 +5,13 @@ use std::time::Instant;
 
 use anyhow::{Context, Result};
 use clap::ValueEnum;
-use flowopt_planner::am::{AmSettings, Engine, Objective, Stop};
+use std::path::PathBuf;
+
+use flowopt_models::flow::Solver;
+use flowopt_models::pipeline::{FlowOpt, PipelineOutcome, PipelineSettings, StageTimes};
+use flowopt_planner::am::{AmOutcome, AmSettings, Engine, Objective, Residuals, Stop};
 use flowopt_planner::metrics::Metrics;
+use flowopt_planner::plan::JointPlan;
 use flowopt_planner::problem::{Problem, Team};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -22,6 +27,65 @@ pub enum Method {
     /// uniform noise of 10% of the separation on every coefficient (timed:
     /// the SF alone).
     SafetyFilter,
+    /// The Flow-Opt pipeline: flow samples, ranking, learned SF
+    /// initialisation, safety filter, selection.
+    Flowopt,
+    /// The pipeline with the SF started from the flow samples themselves
+    /// (zero multiplier): the paper's ablation.
+    FlowNoInit,
+}
+
+/// The learned planner's weights and pipeline settings on the command line.
+#[derive(Debug, Clone, clap::Args)]
+pub struct LearnedArgs {
+    /// Flow policy weights.
+    #[arg(long, default_value = "models/weights/flow.safetensors")]
+    pub flow_weights: PathBuf,
+    /// SF initialiser weights.
+    #[arg(long, default_value = "models/weights/init.safetensors")]
+    pub init_weights: PathBuf,
+    /// Candidates sampled per problem.
+    #[arg(long, default_value_t = 16)]
+    pub candidates: usize,
+    /// Flow integration steps.
+    #[arg(long, default_value_t = 4)]
+    pub flow_steps: usize,
+    /// Flow integrator.
+    #[arg(long, value_enum, default_value = "euler")]
+    pub solver: SolverArg,
+    /// Candidates refined by the safety filter.
+    #[arg(long, default_value_t = 4)]
+    pub top_k: usize,
+    /// Scale of the flow's initial noise.
+    #[arg(long, default_value_t = 1.0)]
+    pub temperature: f64,
+}
+
+/// Flow integrator on the command line.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum SolverArg {
+    /// Explicit Euler.
+    Euler,
+    /// Explicit midpoint (RK2).
+    Midpoint,
+}
+
+impl LearnedArgs {
+    /// The pipeline settings for `method`.
+    pub fn settings(&self, method: Method) -> PipelineSettings {
+        PipelineSettings {
+            candidates: self.candidates,
+            steps: self.flow_steps,
+            solver: match self.solver {
+                SolverArg::Euler => Solver::Euler,
+                SolverArg::Midpoint => Solver::Midpoint,
+            },
+            top_k: self.top_k,
+            temperature: self.temperature,
+            use_init: method == Method::Flowopt,
+            ..PipelineSettings::default()
+        }
+    }
 }
 
 /// Overrides of the engine settings from the command line.
@@ -76,60 +140,153 @@ pub struct Record {
     pub primal_residual: f64,
     /// Why the AM stopped.
     pub stop: Stop,
+    /// Iterations of the same start (cold start, or the chosen candidate's
+    /// SF start) until the primal residual is at or below 0.01 m, in a
+    /// separate untimed residual study (`None`: not within its cap).
+    pub iterations_to_0_01: Option<usize>,
+    /// The same to 0.001 m.
+    pub iterations_to_0_001: Option<usize>,
+    /// Pipeline stage times (learned methods).
+    pub stages: Option<StageTimes>,
+}
+
+/// What an engine is used for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+enum Use {
+    Optimise,
+    Filter,
+    /// Residual studies: no verification, primal tolerance 0.001, history.
+    StudyOptimise,
+    StudyFilter,
+}
+
+/// Cap of the residual studies' iterations.
+const STUDY_CAP: usize = 10_000;
+
+/// The first iterate whose primal residual is at or below `level`.
+fn first_below(history: &[Residuals], level: f64) -> Option<usize> {
+    history.iter().position(|r| r.primal <= level)
 }
 
 /// Engines built once per (team, obstacle count, objective) and reused:
 /// construction (factorisations) is a start-up cost, not a per-plan one.
 pub struct Planner {
     overrides: Overrides,
-    engines: HashMap<(String, usize, bool), Engine>,
+    learned_args: Option<LearnedArgs>,
+    learned: Option<FlowOpt>,
+    engines: HashMap<(String, usize, Use), Engine>,
 }
 
 impl Planner {
-    /// A planner applying `overrides` to the default settings.
-    pub fn new(overrides: Overrides) -> Self {
-        Self { overrides, engines: HashMap::new() }
+    /// A planner applying `overrides` to the default settings; the learned
+    /// methods load their weights from `learned` on first use.
+    pub fn new(overrides: Overrides, learned: Option<LearnedArgs>) -> Self {
+        Self { overrides, learned_args: learned, learned: None, engines: HashMap::new() }
     }
 
-    fn engine(&mut self, team: &Team, obstacles: usize, filter: bool) -> Result<&Engine> {
-        let key = (format!("{team:?}"), obstacles, filter);
+    fn engine(&mut self, team: &Team, obstacles: usize, usage: Use) -> Result<&Engine> {
+        let key = (format!("{team:?}"), obstacles, usage);
         if !self.engines.contains_key(&key) {
-            let (objective, settings) = if filter {
-                (Objective::Projection, AmSettings::safety_filter())
-            } else {
-                (Objective::smoothness(), AmSettings::optimiser())
+            let (objective, settings) = match usage {
+                Use::Filter => (Objective::Projection, self.overrides.apply(AmSettings::safety_filter())),
+                Use::Optimise => (Objective::smoothness(), self.overrides.apply(AmSettings::optimiser())),
+                Use::StudyFilter | Use::StudyOptimise => {
+                    let (objective, base) = if usage == Use::StudyFilter {
+                        (Objective::Projection, AmSettings::safety_filter())
+                    } else {
+                        (Objective::smoothness(), AmSettings::optimiser())
+                    };
+                    let mut s = base.residual_study(0.001);
+                    s.max_iterations = STUDY_CAP;
+                    s.restarts = 0;
+                    (objective, s)
+                }
             };
-            let engine = Engine::new(team, obstacles, objective, self.overrides.apply(settings))
-                .context("building the AM engine")?;
+            let engine = Engine::new(team, obstacles, objective, settings).context("building the AM engine")?;
             self.engines.insert(key.clone(), engine);
         }
         Ok(&self.engines[&key])
     }
 
+    fn learned(&mut self) -> Result<(&FlowOpt, &LearnedArgs)> {
+        let args = self.learned_args.as_ref().context("no learned-planner weights were given")?;
+        if self.learned.is_none() {
+            let init = args.init_weights.exists().then_some(args.init_weights.as_path());
+            let model = FlowOpt::load(&args.flow_weights, init)
+                .with_context(|| format!("loading the learned planner from {}", args.flow_weights.display()))?;
+            self.learned = Some(model);
+        }
+        Ok((self.learned.as_ref().context("loaded above")?, args))
+    }
+
+    /// Plans `problem` with a learned method; returns the outcome and the
+    /// wall time (ms). `seed` seeds the flow noise.
+    pub fn plan_learned(&mut self, method: Method, problem: &Problem, seed: u64) -> Result<(PipelineOutcome, f64)> {
+        let team = problem.team.clone();
+        let m = problem.obstacles.len();
+        self.engine(&team, m, Use::Filter)?;
+        let key = (format!("{team:?}"), m, Use::Filter);
+        self.learned()?;
+        let (Some(model), Some(args)) = (self.learned.as_ref(), self.learned_args.as_ref()) else {
+            anyhow::bail!("the learned planner is not loaded");
+        };
+        if method == Method::Flowopt && !model.has_init() {
+            anyhow::bail!("{} is missing: flowopt needs the SF initialiser", args.init_weights.display());
+        }
+        let sf = &self.engines[&key];
+        let start = Instant::now();
+        let outcome = model.plan(problem, sf, &args.settings(method), seed, None).context("running the pipeline")?;
+        Ok((outcome, start.elapsed().as_secs_f64() * 1e3))
+    }
+
     /// Plans `problem` with `method`, timing the method's own stage.
     pub fn run(&mut self, method: Method, problem: &Problem, seed: u64) -> Result<Record> {
         let obstacles = problem.obstacles.len();
-        let optimiser = self.engine(&problem.team, obstacles, false)?;
+        if matches!(method, Method::Flowopt | Method::FlowNoInit) {
+            let (out, time_ms) = self.plan_learned(method, problem, seed)?;
+            let chosen = &out.refined[out.chosen];
+            let study =
+                self.engine(&problem.team, obstacles, Use::StudyFilter)?.run(&chosen.prepared, chosen.start.clone());
+            return Ok(Record::of(problem, chosen.outcome.clone(), time_ms, &study.history, Some(out.times)));
+        }
+        let optimiser = self.engine(&problem.team, obstacles, Use::Optimise)?;
         let start = Instant::now();
         let solved = optimiser.solve(problem).context("optimising")?;
         let optimise_ms = start.elapsed().as_secs_f64() * 1e3;
+        let study = {
+            let engine = self.engine(&problem.team, obstacles, Use::StudyOptimise)?;
+            let prepared = engine.prepare(problem, None).context("preparing the residual study")?;
+            engine.run(&prepared, engine.cold_start(&prepared)).history
+        };
         let outcome = match method {
-            Method::Baseline => (solved, optimise_ms),
+            Method::Baseline | Method::Flowopt | Method::FlowNoInit => (solved, optimise_ms),
             Method::SafetyFilter => {
                 let noise = 0.1 * problem.team.separation().0;
                 let mut rng = ChaCha8Rng::seed_from_u64(seed);
                 let sample: Vec<f64> =
                     solved.state.xi.iter().map(|x| x + noise * rng.random_range(-1.0..=1.0)).collect();
-                let filter = self.engine(&problem.team, obstacles, true)?;
+                let filter = self.engine(&problem.team, obstacles, Use::Filter)?;
                 let start = Instant::now();
                 let filtered = filter.filter(problem, &sample, None).context("filtering")?;
                 (filtered, start.elapsed().as_secs_f64() * 1e3)
             }
         };
         let (outcome, time_ms) = outcome;
+        Ok(Record::of(problem, outcome, time_ms, &study, None))
+    }
+}
+
+impl Record {
+    fn of(
+        problem: &Problem,
+        outcome: AmOutcome,
+        time_ms: f64,
+        study: &[Residuals],
+        stages: Option<StageTimes>,
+    ) -> Self {
         let plan = flowopt_planner::plan::JointPlan::new(&problem.team, outcome.state.xi.clone());
         let metrics = Metrics::measure(problem, &plan);
-        Ok(Record {
+        Record {
             success: metrics.success(problem.team.separation().0),
             iterations: outcome.iterations,
             time_ms,
@@ -138,6 +295,18 @@ impl Planner {
             min_clearance: metrics.min_clearance(),
             primal_residual: outcome.primal,
             stop: outcome.stop,
-        })
+            iterations_to_0_01: first_below(study, 0.01),
+            iterations_to_0_001: first_below(study, 0.001),
+            stages,
+        }
     }
+}
+
+/// Root-mean-square distance (m) between the positions of two plans of
+/// one team over `samples` instants.
+pub fn plan_distance(team: &Team, a: &[f64], b: &[f64]) -> f64 {
+    let pa = JointPlan::new(team, a.to_vec()).sampled(team.samples, 0);
+    let pb = JointPlan::new(team, b.to_vec()).sampled(team.samples, 0);
+    let sq: f64 = pa.iter().zip(&pb).map(|(x, y)| (x - y) * (x - y)).sum();
+    (sq / (team.robots * team.samples) as f64).sqrt()
 }

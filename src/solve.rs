@@ -16,6 +16,8 @@ pub struct SolveArgs {
     method: Method,
     #[command(flatten)]
     engine: EngineArgs,
+    #[command(flatten)]
+    learned: crate::methods::LearnedArgs,
     /// Print one JSON object instead of text.
     #[arg(long)]
     json: bool,
@@ -55,7 +57,7 @@ impl EngineArgs {
 /// Runs `flowopt solve`.
 pub fn run(args: SolveArgs) -> Result<()> {
     let problem = args.instance.instance(0)?;
-    let mut planner = Planner::new(args.engine.overrides());
+    let mut planner = Planner::new(args.engine.overrides(), Some(args.learned.clone()));
     let record = planner.run(args.method, &problem, args.instance.seed)?;
     if args.json {
         println!("{}", serde_json::to_string(&record)?);

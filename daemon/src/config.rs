@@ -2,12 +2,13 @@
 //! commented default.
 
 use std::collections::HashSet;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use flowopt_client::messages::check_team_name;
 use flowopt_client::{MAX_COEFFS, MAX_OBSTACLES, MAX_ROBOTS};
 use flowopt_planner::problem::{Dim, ProblemError, Team};
 use flowopt_planner::scenario::{FileBox, FileShape};
+
 use serde::Deserialize;
 use thiserror::Error;
 
@@ -115,6 +116,42 @@ pub struct TeamConfig {
     /// Report the state as stale when no snapshot arrives for this long (ms).
     #[serde(default = "default_stale_ms")]
     pub stale_after_ms: f64,
+    /// The learned planner for cold plans; without it the from-scratch
+    /// optimiser makes them.
+    #[serde(default)]
+    pub learned: Option<LearnedConfig>,
+}
+
+/// The learned planner of a team (`[team.learned]`). Paths are relative to
+/// the working directory.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LearnedConfig {
+    /// Flow policy weights.
+    pub flow: PathBuf,
+    /// SF initialiser weights (optional: without them the SF starts from
+    /// the samples).
+    #[serde(default)]
+    pub init: Option<PathBuf>,
+    /// Candidates sampled per cold plan.
+    #[serde(default = "default_candidates")]
+    pub candidates: usize,
+    /// Flow integration steps (Euler).
+    #[serde(default = "default_flow_steps")]
+    pub flow_steps: usize,
+    /// Candidates refined by the safety filter.
+    #[serde(default = "default_top_k")]
+    pub top_k: usize,
+}
+
+fn default_candidates() -> usize {
+    16
+}
+fn default_flow_steps() -> usize {
+    4
+}
+fn default_top_k() -> usize {
+    4
 }
 
 fn default_horizon() -> f64 {

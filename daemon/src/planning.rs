@@ -10,7 +10,9 @@
 //!   projects the fit; a verified result is the plan.
 //! - **Cold plan.** When the goals or the obstacle count change, there is no
 //!   previous plan, or the filter does not verify within its cap, the
-//!   from-scratch optimiser plans from the measured state.
+//!   learned planner ([`flowopt_models::pipeline`], when the team has
+//!   weights) plans from the measured state; if it has none or its plan does
+//!   not verify, the from-scratch optimiser does.
 //! - **Deadline.** Both stop when the deadline passes; the best iterate so far
 //!   is published as [`PlanStatus::DeadlineMissed`] and the next snapshot is
 //!   warm-started from it.
@@ -27,6 +29,8 @@ use flowopt_planner::route::Fitter;
 use nalgebra::Vector3;
 use tracing::info_span;
 
+use flowopt_models::pipeline::{FlowOpt, PipelineSettings};
+
 use crate::config::{ConfigError, TeamConfig};
 use crate::convert::{Rejection, problem_from};
 
@@ -39,6 +43,9 @@ pub enum PreloadError {
     /// An engine cannot be built for it.
     #[error("cannot build the engines: {0}")]
     Engine(#[from] EngineError),
+    /// The learned planner's weights cannot be loaded or do not fit the team.
+    #[error("cannot load the learned planner: {0}")]
+    Model(#[from] flowopt_models::ModelError),
 }
 
 /// Iteration cap of the warm-start safety filter (about 10 ms for 16
@@ -136,6 +143,10 @@ pub struct TeamPlanner {
     /// Safety filters, one per obstacle count.
     filters: Vec<Engine>,
     fitter: Fitter,
+    /// The learned planner and its settings, if configured.
+    learned: Option<(FlowOpt, PipelineSettings)>,
+    /// Cold plans made so far (seeds the flow noise).
+    cold_plans: u64,
     previous: Option<Previous>,
 }
 
@@ -161,6 +172,26 @@ impl TeamPlanner {
             buffered(AmSettings { max_iterations: WARM_ITERATIONS, ..AmSettings::safety_filter() }),
         )?;
         let fitter = Fitter::new(optimisers[0].basis()).map_err(EngineError::Kkt)?;
+        let learned = match &config.learned {
+            Some(l) => {
+                let model = FlowOpt::load(&l.flow, l.init.as_deref())?;
+                let settings = PipelineSettings {
+                    candidates: l.candidates,
+                    steps: l.flow_steps,
+                    top_k: l.top_k,
+                    use_init: model.has_init(),
+                    ..PipelineSettings::default()
+                };
+                Some((model, settings))
+            }
+            None => None,
+        };
+        if let Some((model, _)) = &learned {
+            let probe = flowopt_planner::scenario::RandomScenario::new(team.clone())
+                .generate(0)
+                .map_err(flowopt_models::ModelError::from)?;
+            model.check(&probe)?;
+        }
         Ok(Self {
             name: config.name.clone(),
             team,
@@ -169,6 +200,8 @@ impl TeamPlanner {
             optimisers,
             filters,
             fitter,
+            learned,
+            cold_plans: 0,
             previous: None,
         })
     }
@@ -220,15 +253,23 @@ impl TeamPlanner {
             };
             timings.filter_us = us(t.elapsed());
             if let Ok(outcome) = outcome {
-                iterations += outcome.iterations;
-                if outcome.stop != Stop::IterationCap {
+                // A failed warm start's iterations count; a kept one's are
+                // counted with the plan below.
+                if outcome.stop == Stop::IterationCap {
+                    iterations += outcome.iterations;
+                } else {
                     warm_result = Some(outcome);
                 }
             }
         }
-        let (outcome, warm) = match warm_result {
-            Some(o) => (o, true),
-            None => {
+        let learned = match warm_result {
+            None => self.learned_plan(&problem, deadline, &mut timings),
+            Some(_) => None,
+        };
+        let (outcome, warm) = match (warm_result, learned) {
+            (Some(o), _) => (o, true),
+            (None, Some(o)) => (o, false),
+            (None, None) => {
                 let t = Instant::now();
                 let outcome = {
                     let _span = info_span!("optimise").entered();
@@ -251,6 +292,24 @@ impl TeamPlanner {
         };
         iterations += outcome.iterations;
         self.finish(outcome, warm, iterations, problem, snapshot.timestamp_ns, timings)
+    }
+
+    /// A cold plan from the learned pipeline, if the team has one and its
+    /// plan verifies (or the deadline stopped it).
+    fn learned_plan(&mut self, problem: &Problem, deadline: Instant, timings: &mut StageTimings) -> Option<AmOutcome> {
+        let (model, settings) = self.learned.as_ref()?;
+        self.cold_plans += 1;
+        let _span = info_span!("learned").entered();
+        let sf = &self.filters[problem.obstacles.len()];
+        let out = model.plan(problem, sf, settings, self.cold_plans, Some(deadline)).ok()?;
+        let us_of = |ms: f64| (ms * 1e3).clamp(0.0, u32::MAX as f64) as u32;
+        timings.sample_us = us_of(out.times.sample_ms).max(1);
+        timings.rank_us = us_of(out.times.rank_ms);
+        timings.init_us = us_of(out.times.init_ms);
+        timings.filter_us = timings.filter_us.saturating_add(us_of(out.times.filter_ms));
+        timings.select_us = us_of(out.times.select_ms);
+        let chosen = out.refined.into_iter().nth(out.chosen)?;
+        matches!(chosen.outcome.stop, Stop::Verified | Stop::Deadline).then_some(chosen.outcome)
     }
 
     fn finish(
@@ -346,6 +405,31 @@ mod tests {
             r.goal = problem.goals[i].into();
         }
         s
+    }
+
+    #[test]
+    fn the_learned_config_preloads_the_shipped_weights_and_plans_cold_with_them() {
+        let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+        let config = crate::config::DaemonConfig::load(&root.join("config/learned.toml")).unwrap();
+        let mut team = config.teams[0].clone();
+        team.name = "t".into();
+        team.deadline_ms = 10_000.0;
+        let learned = team.learned.as_mut().unwrap();
+        learned.flow = root.join(&learned.flow);
+        learned.init = learned.init.as_ref().map(|p| root.join(p));
+        let mut planner = TeamPlanner::preload(&team).unwrap();
+        let problem = RandomScenario::new(planner.team().clone()).generate(11).unwrap();
+        let planned = planner.plan(&snapshot(&problem, 1), Instant::now());
+        assert_eq!(planned.status, PlanStatus::Ok);
+        assert!(!planned.warm && planned.timings.sample_us > 0, "the pipeline made the cold plan");
+        let m = Metrics::measure(&problem, planned.plan.as_ref().unwrap());
+        assert!(m.success(planner.team().separation().0));
+        // Weights for another dimension are refused at preload.
+        let mut three = team.clone();
+        three.dim = Dim::Three;
+        three.robot = toml::from_str("radius = 0.1").unwrap();
+        three.workspace = toml::from_str("min = [-1.0, -1.0, -1.0]\nmax = [1.0, 1.0, 1.0]").unwrap();
+        assert!(matches!(TeamPlanner::preload(&three), Err(PreloadError::Model(_))));
     }
 
     #[test]

@@ -9,6 +9,7 @@
 //! - [`am`]: the alternating-minimisation engine, used as the safety filter
 //!   and as the from-scratch optimiser;
 //! - [`route`]: obstacle-aware cold starts for the optimiser;
+//! - [`reference`]: the smoothest curves through the boundary values;
 //! - [`plan`]: a joint plan and its evaluation;
 //! - [`metrics`]: smoothness, arc length, clearances, the success verdict,
 //!   time scaling.
@@ -20,5 +21,6 @@ pub mod linalg;
 pub mod metrics;
 pub mod plan;
 pub mod problem;
+pub mod reference;
 pub mod route;
 pub mod scenario;

@@ -43,13 +43,15 @@ use thiserror::Error;
 pub use settings::{AmSettings, RhoSchedule, Stop};
 
 use crate::basis::{BOUNDARY_ROWS, Basis};
-use crate::kkt::{KktError, SmallKkt, TeamKkt, WORKSPACE_WEIGHT};
+use crate::kkt::{KktError, TeamKkt, WORKSPACE_WEIGHT};
 use crate::linalg::{dot, gemm};
 use crate::metrics::DENSE_FACTOR;
 use crate::plan::JointPlan;
 use crate::problem::{Problem, ProblemError, Team};
+use crate::reference::{ReferenceError, SmoothReference};
 use crate::route::{Blockers, Fitter, route};
-use projection::{Limits, Projection, SampleGrid};
+pub use projection::Limits;
+use projection::{Projection, SampleGrid};
 
 /// First sample the constraints are imposed at (sample 0 is the start state).
 pub const FIRST_CONSTRAINED_SAMPLE: usize = 1;
@@ -175,8 +177,8 @@ pub struct Engine {
     /// The dense verification grid `1..DENSE_FACTOR K` (of `DENSE_FACTOR K`).
     dense: SampleGrid,
     levels: Vec<Level>,
-    /// Solution operator of the unconstrained cost (optimiser cold start).
-    cold: SmallKkt,
+    /// The smoothest curves through the boundary values (optimiser cold start).
+    reference: SmoothReference,
     /// Fits routed cold starts to the basis.
     fitter: Fitter,
     /// The six boundary rows, `6 x n_xi`.
@@ -198,6 +200,50 @@ pub struct Prepared {
     verify: Limits,
     /// Boundary values `[axis][robot][6]` (normalised time).
     boundary: Vec<f64>,
+}
+
+/// The linear pieces of one iteration at one penalty level, for code that
+/// re-implements the iteration (the learned initialiser's differentiable
+/// unrolled safety filter). Matrices are row-major; with `[axis][robot][coef]`
+/// rows, one iteration from `(xi, lambda)` with projection corrections `c`
+/// (`[axis][robot][sample]`, see [`Limits`]) is
+/// `g = c P`, `lambda += rho g`, `u_i = modes xi_i - sum_j xi_j`,
+/// `r = target + rho g + lambda + u gram_rho`,
+/// `xi_i = beta_i + r_i k11_diff + mean_r mean_minus_diff^T`.
+#[derive(Debug, Clone)]
+pub struct StepOperators {
+    /// The penalty.
+    pub rho: f64,
+    /// `n + m + w`: robots, obstacles and the workspace weight.
+    pub modes: f64,
+    /// Normalised times of the constrained samples.
+    pub taus: Vec<f64>,
+    /// `P` at the constrained samples, `count x n_xi`.
+    pub p: Vec<f64>,
+    /// `rho P^T P`, `n_xi x n_xi`.
+    pub rho_gram: Vec<f64>,
+    /// `K11` of the difference-mode system, `n_xi x n_xi`.
+    pub k11_diff: Vec<f64>,
+    /// `K11_mean - K11_diff`, `n_xi x n_xi`.
+    pub mean_minus_diff: Vec<f64>,
+}
+
+impl Prepared {
+    /// The boundary part `beta` of the xi-step at penalty level `level`
+    /// (clamped), `[axis][robot][coef]`.
+    pub fn beta(&self, level: usize) -> &[f64] {
+        &self.beta[level.min(self.beta.len() - 1)]
+    }
+
+    /// The SF sample (empty for the optimiser), `[axis][robot][coef]`.
+    pub fn target(&self) -> &[f64] {
+        &self.target
+    }
+
+    /// The inflated sizes and shrunk box the iterations project onto.
+    pub fn constraint(&self) -> &Limits {
+        &self.constraint
+    }
 }
 
 /// Runs single AM iterations with buffers allocated once: the unit the
@@ -263,7 +309,10 @@ impl Engine {
                 Ok(Level { rho, kkt, mean_minus_diff, rho_gram: gram.iter().map(|g| rho * g).collect() })
             })
             .collect::<Result<Vec<_>, KktError>>()?;
-        let cold = SmallKkt::new(&cost, &boundary, n_xi)?;
+        let reference = SmoothReference::new(team).map_err(|e| match e {
+            ReferenceError::Basis(b) => EngineError::Problem(b.into()),
+            ReferenceError::Kkt(k) => EngineError::Kkt(k),
+        })?;
         let fitter = Fitter::new(&basis)?;
         Ok(Self {
             team: team.clone(),
@@ -275,7 +324,7 @@ impl Engine {
             grid,
             dense,
             levels,
-            cold,
+            reference,
             fitter,
             boundary_rows: boundary,
         })
@@ -400,9 +449,8 @@ impl Engine {
         let n = self.team.robots;
         let nx = self.n_xi;
         let mut xi = vec![0.0; self.coeff_len()];
-        let zero = vec![0.0; nx];
         for (row, bv) in xi.chunks_exact_mut(nx).zip(b.chunks_exact(BOUNDARY_ROWS)) {
-            self.cold.apply(&zero, bv, row);
+            self.reference.curve(bv, row);
         }
         if !self.settings.routed_start {
             return xi;
@@ -560,6 +608,21 @@ impl Engine {
                 history.push(Residuals { primal, fixed_point });
             }
             iterations += 1;
+        }
+    }
+
+    /// The linear pieces of an iteration at penalty level `level` (clamped
+    /// to the schedule).
+    pub fn step_operators(&self, level: usize) -> StepOperators {
+        let lv = &self.levels[level.min(self.levels.len() - 1)];
+        StepOperators {
+            rho: lv.rho,
+            modes: self.team.robots as f64 + self.obstacles as f64 + WORKSPACE_WEIGHT,
+            taus: self.grid.taus.clone(),
+            p: self.grid.p.clone(),
+            rho_gram: lv.rho_gram.clone(),
+            k11_diff: lv.kkt.diff().k11().to_vec(),
+            mean_minus_diff: lv.mean_minus_diff.clone(),
         }
     }
 

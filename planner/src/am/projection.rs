@@ -55,7 +55,7 @@ impl SampleGrid {
 
 /// Sizes, box and obstacle tracks one projection checks against.
 #[derive(Debug, Clone)]
-pub(crate) struct Limits {
+pub struct Limits {
     /// Robot-robot separations per axis.
     robot_sep: [f64; 3],
     /// Per obstacle: robot-obstacle separations per axis.
@@ -68,9 +68,29 @@ pub(crate) struct Limits {
 }
 
 impl Limits {
+    /// Robot-robot separations per axis (m).
+    pub fn robot_separation(&self) -> [f64; 3] {
+        self.robot_sep
+    }
+
+    /// Robot-obstacle separations per axis, per obstacle (m).
+    pub fn obstacle_separations(&self) -> &[[f64; 3]] {
+        &self.obstacle_sep
+    }
+
+    /// The box positions are clamped into, `(lower, upper)` per axis (m).
+    pub fn bounds(&self) -> ([f64; 3], [f64; 3]) {
+        (self.lo, self.hi)
+    }
+
+    /// Obstacle centres at the grid's instants, `[obstacle][axis][sample]` (m).
+    pub fn tracks(&self) -> &[f64] {
+        &self.tracks
+    }
+
     /// The limits of `problem` on `grid`: every separation scaled by
     /// `scale`, the box moved inwards by `inset` (per axis; negative grows it).
-    pub fn new(problem: &Problem, grid: &SampleGrid, scale: f64, inset: [f64; 3]) -> Self {
+    pub(crate) fn new(problem: &Problem, grid: &SampleGrid, scale: f64, inset: [f64; 3]) -> Self {
         let team = &problem.team;
         let dim = team.dim.axes();
         let (a, b) = team.separation();

@@ -1,0 +1,249 @@
+//! The safety filter written in candle ops, differentiable end to end, for
+//! training the initialiser through `L` unrolled iterations (METHOD.md
+//! section 4). It is the planner's SF iteration
+//! ([`flowopt_planner::am::StepOperators`]) on a batch of problems of one
+//! shape: the projection pushes every violating pair or robot-obstacle
+//! offset `d` to `d max(1, 1/r)` (normalised differences, no angles) and
+//! clamps positions into the box, then the multiplier and xi-steps apply
+//! the same pre-factored operators. Tensors are `[B, axis, robot, coef]`,
+//! the planner's `[axis][robot][coef]` per problem.
+
+use candle_core::{DType, Device, Result, Tensor};
+use flowopt_planner::am::{Engine, Prepared};
+
+/// Diagonal offset that keeps a robot from interacting with itself.
+const SELF_OFFSET: f64 = 1e6;
+
+/// The constant operators of one engine (team shape, obstacle count).
+#[derive(Debug, Clone)]
+pub struct UnrolledSf {
+    rho: f64,
+    modes: f64,
+    /// `P^T`, `[n_xi, K]`.
+    pt: Tensor,
+    /// `P`, `[K, n_xi]`.
+    p: Tensor,
+    rho_gram: Tensor,
+    k11_diff: Tensor,
+    /// `(K11_mean - K11_diff)^T`.
+    mean_minus_diff_t: Tensor,
+    /// `1 / sep^2` per axis, `[1, D, 1, 1, 1]`.
+    inv_robot: Tensor,
+    /// `n x n` diagonal offset, `[1, n, n, 1]`.
+    self_offset: Tensor,
+    dtype: DType,
+}
+
+/// The per-problem data of a batch.
+#[derive(Debug, Clone)]
+pub struct SfBatch {
+    /// `[B, D, n, n_xi]`.
+    pub beta: Tensor,
+    /// The samples, `[B, D, n, n_xi]`.
+    pub target: Tensor,
+    /// Obstacle centres, `[B, D, m, K]`, and `1 / sep^2`, `[B, D, 1, m, 1]`.
+    pub obstacles: Option<(Tensor, Tensor)>,
+    /// Box per axis, `[1, D, 1, 1]` each.
+    pub lo: Tensor,
+    /// Upper corner.
+    pub hi: Tensor,
+}
+
+fn matrix(values: &[f64], rows: usize, cols: usize, dtype: DType) -> Result<Tensor> {
+    Tensor::from_slice(values, (rows, cols), &Device::Cpu)?.to_dtype(dtype)
+}
+
+impl UnrolledSf {
+    /// The operators of `engine` (a safety filter) at its first penalty
+    /// level, in `dtype`.
+    pub fn new(engine: &Engine, dtype: DType) -> Result<Self> {
+        let ops = engine.step_operators(0);
+        let team = engine.team();
+        let (dim, n) = (team.dim.axes(), team.robots);
+        let nx = engine.basis().n_xi();
+        let k = ops.taus.len();
+        let p = matrix(&ops.p, k, nx, dtype)?;
+        let mmd = matrix(&ops.mean_minus_diff, nx, nx, dtype)?;
+        let (a, b) = team.separation();
+        let margin = 1.0 + engine.settings().margin;
+        let sep = [a, a, b].map(|s| s * margin);
+        let inv: Vec<f64> = (0..dim).map(|ax| 1.0 / (sep[ax] * sep[ax])).collect();
+        let offset: Vec<f64> = (0..n * n).map(|i| if i / n == i % n { SELF_OFFSET } else { 0.0 }).collect();
+        Ok(Self {
+            rho: ops.rho,
+            modes: ops.modes,
+            pt: p.t()?.contiguous()?,
+            p,
+            rho_gram: matrix(&ops.rho_gram, nx, nx, dtype)?,
+            k11_diff: matrix(&ops.k11_diff, nx, nx, dtype)?,
+            mean_minus_diff_t: mmd.t()?.contiguous()?,
+            inv_robot: Tensor::from_vec(inv, (1, dim, 1, 1, 1), &Device::Cpu)?.to_dtype(dtype)?,
+            self_offset: Tensor::from_vec(offset, (1, n, n, 1), &Device::Cpu)?.to_dtype(dtype)?,
+            dtype,
+        })
+    }
+
+    /// The batch of prepared problems (all of this engine's shape).
+    pub fn batch(&self, engine: &Engine, prepared: &[&Prepared]) -> Result<SfBatch> {
+        let team = engine.team();
+        let (dim, n) = (team.dim.axes(), team.robots);
+        let nx = engine.basis().n_xi();
+        let k = self.p.dim(0)?;
+        let b = prepared.len();
+        let m = engine.obstacles();
+        let stack = |f: &dyn Fn(&Prepared) -> &[f64]| -> Result<Tensor> {
+            let v: Vec<f64> = prepared.iter().flat_map(|p| f(p).iter().copied()).collect();
+            Tensor::from_vec(v, (b, dim, n, nx), &Device::Cpu)?.to_dtype(self.dtype)
+        };
+        let obstacles = if m == 0 {
+            None
+        } else {
+            let mut tracks = Vec::with_capacity(b * dim * m * k);
+            let mut inv = Vec::with_capacity(b * dim * m);
+            for p in prepared {
+                let limits = p.constraint();
+                // Limits hold [obstacle][axis][sample]; the batch wants [axis][obstacle][sample].
+                for ax in 0..dim {
+                    for o in 0..m {
+                        tracks.extend_from_slice(&limits.tracks()[(o * dim + ax) * k..(o * dim + ax + 1) * k]);
+                    }
+                }
+                for ax in 0..dim {
+                    inv.extend(limits.obstacle_separations().iter().map(|s| 1.0 / (s[ax] * s[ax])));
+                }
+            }
+            Some((
+                Tensor::from_vec(tracks, (b, dim, m, k), &Device::Cpu)?.to_dtype(self.dtype)?,
+                Tensor::from_vec(inv, (b, dim, 1, m, 1), &Device::Cpu)?.to_dtype(self.dtype)?,
+            ))
+        };
+        let (lo, hi) = match prepared.first() {
+            Some(p) => p.constraint().bounds(),
+            None => ([0.0; 3], [0.0; 3]),
+        };
+        let corner =
+            |c: [f64; 3]| Tensor::from_vec(c[..dim].to_vec(), (1, dim, 1, 1), &Device::Cpu)?.to_dtype(self.dtype);
+        Ok(SfBatch {
+            beta: stack(&|p| p.beta(0))?,
+            target: stack(&|p| p.target())?,
+            obstacles,
+            lo: corner(lo)?,
+            hi: corner(hi)?,
+        })
+    }
+
+    /// The projection's corrections `e - F xi` per robot, `[B, D, n, K]`.
+    pub fn corrections(&self, xi: &Tensor, batch: &SfBatch) -> Result<Tensor> {
+        let pos = xi.broadcast_matmul(&self.pt)?;
+        // Pairs: d_ij = p_i - p_j, r^2 = sum_a d_a^2 / sep_a^2.
+        let d = pos.unsqueeze(3)?.broadcast_sub(&pos.unsqueeze(2)?)?;
+        let s = d.sqr()?.broadcast_mul(&self.inv_robot)?.sum(1)?.broadcast_add(&self.self_offset)?;
+        let f = (s.sqrt()?.recip()? - 1.0)?.relu()?;
+        let mut corr = d.broadcast_mul(&f.unsqueeze(1)?)?.sum(3)?;
+        if let Some((tracks, inv)) = &batch.obstacles {
+            let d = pos.unsqueeze(3)?.broadcast_sub(&tracks.unsqueeze(2)?)?;
+            let s = d.sqr()?.broadcast_mul(inv)?.sum(1)?;
+            let f = (s.sqrt()?.recip()? - 1.0)?.relu()?;
+            corr = (corr + d.broadcast_mul(&f.unsqueeze(1)?)?.sum(3)?)?;
+        }
+        let clamped = pos.broadcast_maximum(&batch.lo)?.broadcast_minimum(&batch.hi)?;
+        corr + (clamped - pos)?
+    }
+
+    /// One SF iteration from `(xi, lambda)`.
+    pub fn step(&self, xi: &Tensor, lambda: &Tensor, batch: &SfBatch) -> Result<(Tensor, Tensor)> {
+        let g = self.corrections(xi, batch)?.broadcast_matmul(&self.p)?;
+        let lambda = (lambda + (&g * self.rho)?)?;
+        let u = ((xi * self.modes)?.broadcast_sub(&xi.sum_keepdim(2)?))?;
+        let rhs = ((&batch.target + (&g * self.rho)?)? + &lambda)?.add(&u.broadcast_matmul(&self.rho_gram)?)?;
+        let next = batch
+            .beta
+            .add(&rhs.broadcast_matmul(&self.k11_diff)?)?
+            .broadcast_add(&rhs.mean_keepdim(2)?.broadcast_matmul(&self.mean_minus_diff_t)?)?;
+        Ok((next, lambda))
+    }
+
+    /// Runs `iterations` steps from `(xi, lambda)`; returns the final iterate
+    /// and the per-problem squared fixed-point residuals of every step
+    /// (`||dxi||^2 + ||dlambda||^2`, `[iterations, B]`).
+    pub fn unroll(
+        &self,
+        xi: &Tensor,
+        lambda: &Tensor,
+        batch: &SfBatch,
+        iterations: usize,
+    ) -> Result<(Tensor, Tensor, Tensor)> {
+        let (mut xi, mut lambda) = (xi.clone(), lambda.clone());
+        let mut residuals = Vec::with_capacity(iterations);
+        for _ in 0..iterations {
+            let (x, l) = self.step(&xi, &lambda, batch)?;
+            let r = ((&x - &xi)?.sqr()?.flatten_from(1)?.sum(1)? + (&l - &lambda)?.sqr()?.flatten_from(1)?.sum(1)?)?;
+            residuals.push(r);
+            (xi, lambda) = (x, l);
+        }
+        Ok((xi, lambda, Tensor::stack(&residuals, 0)?))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use flowopt_planner::am::{AmSettings, AmState, Objective};
+    use flowopt_planner::problem::{Dim, Team};
+    use flowopt_planner::reference::SmoothReference;
+    use flowopt_planner::scenario::RandomScenario;
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    #[test]
+    fn the_unrolled_filter_equals_the_planners_filter() {
+        let team = Team::default_for(Dim::Two, 6);
+        let engine = Engine::new(&team, 2, Objective::Projection, AmSettings::safety_filter()).unwrap();
+        let sf = UnrolledSf::new(&engine, DType::F64).unwrap();
+        let reference = SmoothReference::new(&team).unwrap();
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        let mut prepared = Vec::new();
+        let mut states = Vec::new();
+        for seed in 0..2 {
+            let problem =
+                RandomScenario::new(team.clone()).with_obstacles(2).with_start_speed(0.3).generate(seed).unwrap();
+            // The straight curves plus noise collide with each other and the obstacles.
+            let sample: Vec<f64> =
+                reference.coefficients(&problem).iter().map(|x| x + 0.2 * rng.random_range(-1.0..=1.0)).collect();
+            let p = engine.prepare(&problem, Some(&sample)).unwrap();
+            let lambda: Vec<f64> = (0..sample.len()).map(|_| rng.random_range(-0.5..=0.5)).collect();
+            states.push(AmState { xi: sample, lambda });
+            prepared.push(p);
+        }
+        let refs: Vec<&Prepared> = prepared.iter().collect();
+        let batch = sf.batch(&engine, &refs).unwrap();
+        let shape = (2, 2, 6, 11);
+        let flat = |f: &dyn Fn(&AmState) -> &Vec<f64>| states.iter().flat_map(|s| f(s).clone()).collect::<Vec<f64>>();
+        let xi = Tensor::from_vec(flat(&|s| &s.xi), shape, &Device::Cpu).unwrap();
+        let lambda = Tensor::from_vec(flat(&|s| &s.lambda), shape, &Device::Cpu).unwrap();
+        let (xi_l, lambda_l, residuals) = sf.unroll(&xi, &lambda, &batch, 5).unwrap();
+        assert_eq!(residuals.dims(), &[5, 2]);
+        let mut stepped = Vec::new();
+        for (state, p) in states.iter().zip(&prepared) {
+            let mut s = state.clone();
+            let mut stepper = engine.stepper();
+            let mut moved = false;
+            for _ in 0..5 {
+                moved |= stepper.step(p, &mut s, 0).primal > 0.0;
+            }
+            assert!(moved, "the test must exercise the projection");
+            stepped.push(s);
+        }
+        let ours_xi = xi_l.flatten_all().unwrap().to_vec1::<f64>().unwrap();
+        let ours_lambda = lambda_l.flatten_all().unwrap().to_vec1::<f64>().unwrap();
+        let theirs_xi: Vec<f64> = stepped.iter().flat_map(|s| s.xi.clone()).collect();
+        let theirs_lambda: Vec<f64> = stepped.iter().flat_map(|s| s.lambda.clone()).collect();
+        let close = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0.0, f64::max);
+        assert!(close(&ours_xi, &theirs_xi) < 1e-9, "xi differs by {}", close(&ours_xi, &theirs_xi));
+        assert!(
+            close(&ours_lambda, &theirs_lambda) < 1e-9,
+            "lambda differs by {}",
+            close(&ours_lambda, &theirs_lambda)
+        );
+    }
+}

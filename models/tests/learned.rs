@@ -1,0 +1,142 @@
+//! The learned planner end to end on tiny data: datagen, a few training
+//! steps of each network (the loss must fall), weight files, and the
+//! pipeline. No real model is trained here.
+
+use std::path::{Path, PathBuf};
+
+use flowopt_models::datagen::generate;
+use flowopt_models::dataset::{DatagenConfig, Dataset};
+use flowopt_models::flow::FlowConfig;
+use flowopt_models::init::InitConfig;
+use flowopt_models::pipeline::{FlowOpt, PipelineSettings};
+use flowopt_models::train::{InitData, TrainConfig, train_flow, train_init};
+use flowopt_planner::am::{AmSettings, Engine, Objective};
+use flowopt_planner::metrics::Metrics;
+use flowopt_planner::plan::JointPlan;
+
+fn scratch(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("flowopt-learned-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    dir
+}
+
+fn tiny_data(dir: &Path) -> (DatagenConfig, Vec<(PathBuf, Dataset)>) {
+    let config = DatagenConfig {
+        dim: 2,
+        robots: vec![4],
+        max_obstacles: 1,
+        start_speed: 0.2,
+        per_bucket: 24,
+        shard_size: 24,
+        first_seed: 1_000_000_000,
+    };
+    generate(&config, dir, 2, |_| {}).unwrap();
+    (config, vec![(dir.to_path_buf(), Dataset::load(dir).unwrap())])
+}
+
+fn train_config(steps: usize) -> TrainConfig {
+    TrainConfig {
+        steps,
+        tokens_per_batch: 64,
+        lr: 3e-3,
+        lr_min: 1e-4,
+        warmup: 2,
+        clip: 1.0,
+        seed: 7,
+        validation_fraction: 0.2,
+        checkpoint_every: steps,
+    }
+}
+
+#[test]
+fn tiny_networks_learn_and_the_pipeline_plans_with_them() {
+    let dir = scratch("all");
+    let (_config, data) = tiny_data(&dir.join("data"));
+    let flow_cfg = FlowConfig { width: 32, heads: 2, layers: 1, hidden: 32, time_freqs: 8, ..FlowConfig::small(2, 11) };
+    let flow_path = dir.join("flow.safetensors");
+    let report = train_flow(&data, &flow_cfg, &train_config(40), &flow_path, &dir.join("ck"), |_, _, _| {}).unwrap();
+    assert!(
+        report.validation_loss < report.first_validation_loss,
+        "flow validation loss {} -> {}",
+        report.first_validation_loss,
+        report.validation_loss
+    );
+    assert!(flow_path.with_extension("json").exists(), "a model card is written");
+
+    let init_cfg = InitConfig { width: 16, heads: 2, hidden: 16, unroll: 4, ..InitConfig::small(2, 11) };
+    let init_path = dir.join("init.safetensors");
+    let samples = InitData { per_bucket: 20, flow_steps: 2 };
+    let report = train_init(
+        &data,
+        &flow_path,
+        &init_cfg,
+        &samples,
+        &TrainConfig { lr: 1e-3, ..train_config(40) },
+        &init_path,
+        &dir.join("ck"),
+        |_, _, _| {},
+    )
+    .unwrap();
+    assert!(
+        report.validation_loss < report.first_validation_loss,
+        "init validation loss {} -> {}",
+        report.first_validation_loss,
+        report.validation_loss
+    );
+
+    // The pipeline with both networks on an unseen instance.
+    let planner = FlowOpt::load(&flow_path, Some(&init_path)).unwrap();
+    let team = flowopt_planner::problem::Team::default_for(flowopt_planner::problem::Dim::Two, 4);
+    let problem = flowopt_planner::scenario::RandomScenario::new(team.clone()).with_obstacles(1).generate(3).unwrap();
+    let sf = Engine::new(&team, 1, Objective::Projection, AmSettings::safety_filter()).unwrap();
+    let settings = PipelineSettings { candidates: 6, steps: 2, top_k: 3, ..PipelineSettings::default() };
+    let out = planner.plan(&problem, &sf, &settings, 1, None).unwrap();
+    assert_eq!((out.samples.len(), out.refined.len()), (6, 3));
+    assert!(out.refined.windows(2).all(|w| w[0].sample_primal <= w[1].sample_primal), "ranked by primal residual");
+    let m = Metrics::measure(&problem, &JointPlan::new(&team, out.xi().to_vec()));
+    assert!(m.boundary_error < 1e-6, "every plan meets the boundary conditions: {}", m.boundary_error);
+    assert_eq!(out.verified, m.success(team.separation().0), "a verified plan passes the success verdict");
+    assert!(out.times.total_ms >= out.times.sample_ms + out.times.filter_ms);
+    // Same seed, same plan; another seed, other samples.
+    let again = planner.plan(&problem, &sf, &settings, 1, None).unwrap();
+    assert_eq!(again.xi(), out.xi());
+    let other = planner.plan(&problem, &sf, &settings, 2, None).unwrap();
+    assert_ne!(other.samples[0], out.samples[0]);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn an_untrained_initialiser_is_the_plain_start() {
+    let dir = scratch("identity");
+    let (_config, data) = tiny_data(&dir.join("data"));
+    let flow_cfg = FlowConfig { width: 16, heads: 2, layers: 1, hidden: 16, time_freqs: 4, ..FlowConfig::small(2, 11) };
+    let flow_path = dir.join("flow.safetensors");
+    train_flow(&data, &flow_cfg, &train_config(2), &flow_path, &dir.join("ck"), |_, _, _| {}).unwrap();
+    // Zero training steps: the initialiser keeps its zero output heads.
+    let init_path = dir.join("init.safetensors");
+    let init_cfg = InitConfig { width: 16, heads: 2, hidden: 16, unroll: 2, ..InitConfig::small(2, 11) };
+    let cfg = TrainConfig { steps: 0, ..train_config(1) };
+    train_init(
+        &data,
+        &flow_path,
+        &init_cfg,
+        &InitData { per_bucket: 4, flow_steps: 1 },
+        &cfg,
+        &init_path,
+        &dir.join("ck"),
+        |_, _, _| {},
+    )
+    .unwrap();
+    let planner = FlowOpt::load(&flow_path, Some(&init_path)).unwrap();
+    let team = flowopt_planner::problem::Team::default_for(flowopt_planner::problem::Dim::Two, 4);
+    let problem = flowopt_planner::scenario::RandomScenario::new(team.clone()).generate(5).unwrap();
+    let sf = Engine::new(&team, 0, Objective::Projection, AmSettings::safety_filter()).unwrap();
+    let with = PipelineSettings { candidates: 4, steps: 1, top_k: 2, ..PipelineSettings::default() };
+    let without = PipelineSettings { use_init: false, ..with.clone() };
+    let a = planner.plan(&problem, &sf, &with, 9, None).unwrap();
+    let b = planner.plan(&problem, &sf, &without, 9, None).unwrap();
+    for (x, y) in a.refined.iter().zip(&b.refined) {
+        assert_eq!(x.start, y.start);
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
