@@ -8,7 +8,7 @@ use clap::{Args, Subcommand};
 use flowopt_models::dataset::Dataset;
 use flowopt_models::flow::FlowConfig;
 use flowopt_models::init::InitConfig;
-use flowopt_models::train::{InitData, TrainConfig, train_flow, train_init};
+use flowopt_models::train::{InitData, TrainConfig, TrainReport, train_flow, train_init};
 use indicatif::{ProgressBar, ProgressStyle};
 
 /// Train a network of the learned planner.
@@ -163,14 +163,7 @@ pub fn run(args: TrainArgs) -> Result<()> {
             let report = train_flow(&data, &model, &a.common.config(), &a.out, &checkpoints, progress)
                 .context("training the flow policy")?;
             bar.finish_and_clear();
-            println!(
-                "{}: validation loss {:.5} (from {:.5} at this run's first step), {} steps in {:.0} s",
-                a.out.display(),
-                report.validation_loss,
-                report.first_validation_loss,
-                report.steps_run,
-                started.elapsed().as_secs_f64()
-            );
+            finished(&a.out, &report, started);
         }
         Network::Init(a) => {
             let data = a.common.datasets()?;
@@ -188,15 +181,20 @@ pub fn run(args: TrainArgs) -> Result<()> {
                 train_init(&data, &a.flow, &init, &samples, &a.common.config(), &a.out, &checkpoints, progress)
                     .context("training the initialiser")?;
             bar.finish_and_clear();
-            println!(
-                "{}: validation loss {:.5} (from {:.5} at this run's first step), {} steps in {:.0} s",
-                a.out.display(),
-                report.validation_loss,
-                report.first_validation_loss,
-                report.steps_run,
-                started.elapsed().as_secs_f64()
-            );
+            finished(&a.out, &report, started);
         }
     }
     Ok(())
+}
+
+/// Prints where a finished training wrote its weights and how it went.
+fn finished(out: &std::path::Path, report: &TrainReport, started: Instant) {
+    println!(
+        "{}: validation loss {:.5} (from {:.5} at this run's first step), {} steps in {:.0} s",
+        out.display(),
+        report.validation_loss,
+        report.first_validation_loss,
+        report.steps_run,
+        started.elapsed().as_secs_f64()
+    );
 }

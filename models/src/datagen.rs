@@ -87,8 +87,8 @@ pub fn generate(
     Ok(manifest)
 }
 
-/// Solves the instances `range` of a bucket on `threads` threads (instance
-/// `i` on thread `i % threads`), keeping successes in seed order.
+/// Solves the instances `range` of a bucket on `threads` threads, keeping
+/// the successes in seed order.
 fn solve_range(
     config: &DatagenConfig,
     engine: &Engine,
@@ -97,49 +97,26 @@ fn solve_range(
     range: std::ops::Range<usize>,
     threads: usize,
 ) -> Result<Vec<Solved>, ModelError> {
-    let threads = threads.max(1);
-    let results: Vec<Result<Vec<Solved>, ModelError>> = std::thread::scope(|scope| {
-        let handles: Vec<_> = (0..threads)
-            .map(|t| {
-                let range = range.clone();
-                scope.spawn(move || {
-                    let mut kept = Vec::new();
-                    for index in range.skip(t).step_by(threads) {
-                        let seed = config.seed(robots, obstacles, index);
-                        // Instances too dense to place are skipped like failures.
-                        let Ok(problem) = config.problem(robots, obstacles, seed) else { continue };
-                        let outcome = engine.solve(&problem)?;
-                        let xi = outcome.state.xi;
-                        let plan = JointPlan::new(&problem.team, xi.clone());
-                        let metrics = Metrics::measure(&problem, &plan);
-                        if !metrics.success(problem.team.separation().0) {
-                            continue;
-                        }
-                        let (robot_rows, obstacle_rows) = conditions(&problem);
-                        let reference = coding.reference(&problem);
-                        kept.push(Solved {
-                            seed,
-                            robots: robot_rows,
-                            obstacles: obstacle_rows,
-                            tokens: coding.encode(&reference, &xi),
-                            smoothness: metrics.smoothness as f32,
-                        });
-                    }
-                    Ok(kept)
-                })
-            })
-            .collect();
-        handles
-            .into_iter()
-            .map(|h| h.join().unwrap_or_else(|_| Err(ModelError::Config("a worker panicked".into()))))
-            .collect()
-    });
-    let mut all = Vec::new();
-    for r in results {
-        all.extend(r?);
-    }
-    all.sort_by_key(|s| s.seed);
-    Ok(all)
+    crate::runtime::strided(range.len(), threads, |j| {
+        let index = range.start + j;
+        let seed = config.seed(robots, obstacles, index);
+        // Instances too dense to place are skipped like failures.
+        let Ok(problem) = config.problem(robots, obstacles, seed) else { return Ok(None) };
+        let xi = engine.solve(&problem)?.state.xi;
+        let metrics = Metrics::measure(&problem, &JointPlan::new(&problem.team, xi.clone()));
+        if !metrics.success(problem.team.separation().0) {
+            return Ok(None);
+        }
+        let (robot_rows, obstacle_rows) = conditions(&problem);
+        let reference = coding.reference(&problem);
+        Ok(Some(Solved {
+            seed,
+            robots: robot_rows,
+            obstacles: obstacle_rows,
+            tokens: coding.encode(&reference, &xi),
+            smoothness: metrics.smoothness as f32,
+        }))
+    })
 }
 
 fn write_shard(path: &Path, dim: usize, robots: usize, obstacles: usize, solved: &[Solved]) -> Result<(), ModelError> {

@@ -283,37 +283,14 @@ fn refine(
     threads: usize,
     deadline: Option<Instant>,
 ) -> Result<Vec<Refined>, ModelError> {
-    let threads = threads.clamp(1, jobs.len().max(1));
-    let jobs: Vec<(usize, (usize, f64, AmState))> = jobs.into_iter().enumerate().collect();
-    let results: Vec<Result<Vec<(usize, Refined)>, ModelError>> = std::thread::scope(|scope| {
-        let handles: Vec<_> = (0..threads)
-            .map(|t| {
-                let mine: Vec<_> = jobs.iter().filter(|(rank, _)| rank % threads == t).cloned().collect();
-                scope.spawn(move || {
-                    let mut out = Vec::new();
-                    for (rank, (i, primal, start)) in mine {
-                        let prepared = sf.prepare(problem, Some(&samples[i]))?;
-                        let outcome = match deadline {
-                            Some(d) => sf.run_until(&prepared, start.clone(), d),
-                            None => sf.run(&prepared, start.clone()),
-                        };
-                        let smoothness =
-                            JointPlan::new(&problem.team, outcome.state.xi.clone()).smoothness(problem.team.samples);
-                        out.push((rank, Refined { rank, sample_primal: primal, prepared, start, outcome, smoothness }));
-                    }
-                    Ok(out)
-                })
-            })
-            .collect();
-        handles
-            .into_iter()
-            .map(|h| h.join().unwrap_or_else(|_| Err(ModelError::Config("a refinement thread panicked".into()))))
-            .collect()
-    });
-    let mut all = Vec::new();
-    for r in results {
-        all.extend(r?);
-    }
-    all.sort_by_key(|(rank, _)| *rank);
-    Ok(all.into_iter().map(|(_, r)| r).collect())
+    crate::runtime::strided(jobs.len(), threads, |rank| {
+        let (i, primal, start) = &jobs[rank];
+        let prepared = sf.prepare(problem, Some(&samples[*i]))?;
+        let outcome = match deadline {
+            Some(d) => sf.run_until(&prepared, start.clone(), d),
+            None => sf.run(&prepared, start.clone()),
+        };
+        let smoothness = JointPlan::new(&problem.team, outcome.state.xi.clone()).smoothness(problem.team.samples);
+        Ok(Some(Refined { rank, sample_primal: *primal, prepared, start: start.clone(), outcome, smoothness }))
+    })
 }
