@@ -140,8 +140,8 @@ pub struct Record {
     pub primal_residual: f64,
     /// Why the AM stopped.
     pub stop: Stop,
-    /// Iterations of the same start (cold start, or the chosen candidate's
-    /// SF start) until the primal residual is at or below 0.01 m, in a
+    /// Iterations of the same start (the baseline's cold start, the SF
+    /// method's sample, or the chosen candidate's SF start) until the primal residual is at or below 0.01 m, in a
     /// separate untimed residual study (`None`: not within its cap).
     pub iterations_to_0_01: Option<usize>,
     /// The same to 0.001 m.
@@ -162,6 +162,11 @@ enum Use {
 
 /// Cap of the residual studies' iterations.
 const STUDY_CAP: usize = 10_000;
+
+/// The key of the engine for `usage` on a team shape and obstacle count.
+fn engine_key(team: &Team, obstacles: usize, usage: Use) -> (String, usize, Use) {
+    (format!("{team:?}"), obstacles, usage)
+}
 
 /// The first iterate whose primal residual is at or below `level`.
 fn first_below(history: &[Residuals], level: f64) -> Option<usize> {
@@ -185,7 +190,7 @@ impl Planner {
     }
 
     fn engine(&mut self, team: &Team, obstacles: usize, usage: Use) -> Result<&Engine> {
-        let key = (format!("{team:?}"), obstacles, usage);
+        let key = engine_key(team, obstacles, usage);
         if !self.engines.contains_key(&key) {
             let (objective, settings) = match usage {
                 Use::Filter => (Objective::Projection, self.overrides.apply(AmSettings::safety_filter())),
@@ -208,7 +213,8 @@ impl Planner {
         Ok(&self.engines[&key])
     }
 
-    fn learned(&mut self) -> Result<(&FlowOpt, &LearnedArgs)> {
+    /// Loads the learned planner's weights on first use.
+    fn load_learned(&mut self) -> Result<()> {
         let args = self.learned_args.as_ref().context("no learned-planner weights were given")?;
         if self.learned.is_none() {
             let init = args.init_weights.exists().then_some(args.init_weights.as_path());
@@ -216,17 +222,15 @@ impl Planner {
                 .with_context(|| format!("loading the learned planner from {}", args.flow_weights.display()))?;
             self.learned = Some(model);
         }
-        Ok((self.learned.as_ref().context("loaded above")?, args))
+        Ok(())
     }
 
     /// Plans `problem` with a learned method; returns the outcome and the
     /// wall time (ms). `seed` seeds the flow noise.
     pub fn plan_learned(&mut self, method: Method, problem: &Problem, seed: u64) -> Result<(PipelineOutcome, f64)> {
-        let team = problem.team.clone();
-        let m = problem.obstacles.len();
-        self.engine(&team, m, Use::Filter)?;
-        let key = (format!("{team:?}"), m, Use::Filter);
-        self.learned()?;
+        let key = engine_key(&problem.team, problem.obstacles.len(), Use::Filter);
+        self.engine(&problem.team, problem.obstacles.len(), Use::Filter)?;
+        self.load_learned()?;
         let (Some(model), Some(args)) = (self.learned.as_ref(), self.learned_args.as_ref()) else {
             anyhow::bail!("the learned planner is not loaded");
         };
@@ -239,7 +243,8 @@ impl Planner {
         Ok((outcome, start.elapsed().as_secs_f64() * 1e3))
     }
 
-    /// Plans `problem` with `method`, timing the method's own stage.
+    /// Plans `problem` with `method`, timing the method's own stage; the
+    /// residual study starts from the same point as the timed run.
     pub fn run(&mut self, method: Method, problem: &Problem, seed: u64) -> Result<Record> {
         let obstacles = problem.obstacles.len();
         if matches!(method, Method::Flowopt | Method::FlowNoInit) {
@@ -253,25 +258,22 @@ impl Planner {
         let start = Instant::now();
         let solved = optimiser.solve(problem).context("optimising")?;
         let optimise_ms = start.elapsed().as_secs_f64() * 1e3;
-        let study = {
-            let engine = self.engine(&problem.team, obstacles, Use::StudyOptimise)?;
-            let prepared = engine.prepare(problem, None).context("preparing the residual study")?;
-            engine.run(&prepared, engine.cold_start(&prepared)).history
+        // The baseline is studied from its cold start, the SF from its sample.
+        let (outcome, time_ms, sample) = if method == Method::SafetyFilter {
+            let noise = 0.1 * problem.team.separation().0;
+            let mut rng = ChaCha8Rng::seed_from_u64(seed);
+            let sample: Vec<f64> = solved.state.xi.iter().map(|x| x + noise * rng.random_range(-1.0..=1.0)).collect();
+            let filter = self.engine(&problem.team, obstacles, Use::Filter)?;
+            let start = Instant::now();
+            let filtered = filter.filter(problem, &sample, None).context("filtering")?;
+            (filtered, start.elapsed().as_secs_f64() * 1e3, Some(sample))
+        } else {
+            (solved, optimise_ms, None)
         };
-        let outcome = match method {
-            Method::Baseline | Method::Flowopt | Method::FlowNoInit => (solved, optimise_ms),
-            Method::SafetyFilter => {
-                let noise = 0.1 * problem.team.separation().0;
-                let mut rng = ChaCha8Rng::seed_from_u64(seed);
-                let sample: Vec<f64> =
-                    solved.state.xi.iter().map(|x| x + noise * rng.random_range(-1.0..=1.0)).collect();
-                let filter = self.engine(&problem.team, obstacles, Use::Filter)?;
-                let start = Instant::now();
-                let filtered = filter.filter(problem, &sample, None).context("filtering")?;
-                (filtered, start.elapsed().as_secs_f64() * 1e3)
-            }
-        };
-        let (outcome, time_ms) = outcome;
+        let usage = if sample.is_some() { Use::StudyFilter } else { Use::StudyOptimise };
+        let engine = self.engine(&problem.team, obstacles, usage)?;
+        let prepared = engine.prepare(problem, sample.as_deref()).context("preparing the residual study")?;
+        let study = engine.run(&prepared, engine.cold_start(&prepared)).history;
         Ok(Record::of(problem, outcome, time_ms, &study, None))
     }
 }

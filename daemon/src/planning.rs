@@ -175,6 +175,7 @@ impl TeamPlanner {
         let learned = match &config.learned {
             Some(l) => {
                 let model = FlowOpt::load(&l.flow, l.init.as_deref())?;
+                model.check(&team)?;
                 let settings = PipelineSettings {
                     candidates: l.candidates,
                     steps: l.flow_steps,
@@ -186,12 +187,6 @@ impl TeamPlanner {
             }
             None => None,
         };
-        if let Some((model, _)) = &learned {
-            let probe = flowopt_planner::scenario::RandomScenario::new(team.clone())
-                .generate(0)
-                .map_err(flowopt_models::ModelError::from)?;
-            model.check(&probe)?;
-        }
         Ok(Self {
             name: config.name.clone(),
             team,

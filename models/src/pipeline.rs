@@ -10,7 +10,7 @@ use std::time::Instant;
 use candle_core::{Device, Tensor};
 use flowopt_planner::am::{AmOutcome, AmState, Engine, Prepared, Stop};
 use flowopt_planner::plan::JointPlan;
-use flowopt_planner::problem::Problem;
+use flowopt_planner::problem::{Problem, Team};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
@@ -142,10 +142,9 @@ impl FlowOpt {
         self.init.is_some()
     }
 
-    /// Whether the networks were built for `problem`'s dimension and basis.
-    pub fn check(&self, problem: &Problem) -> Result<(), ModelError> {
+    /// Whether the networks were built for `team`'s dimension and basis.
+    pub fn check(&self, team: &Team) -> Result<(), ModelError> {
         let c = self.flow.config();
-        let team = &problem.team;
         if c.dim != team.dim.axes() || c.n_xi != team.degree + 1 {
             return Err(ModelError::Config(format!(
                 "the flow model plans {}D with {} coefficients, the team is {}D with {}",
@@ -198,7 +197,7 @@ impl FlowOpt {
         seed: u64,
         deadline: Option<Instant>,
     ) -> Result<PipelineOutcome, ModelError> {
-        self.check(problem)?;
+        self.check(&problem.team)?;
         let started = Instant::now();
         let count = settings.candidates.max(1);
         let (tokens, robots, obstacles) = self.sample(problem, count, settings, seed)?;

@@ -23,7 +23,7 @@ use flowopt_planner::am::{AmSettings, Engine, Objective, Prepared};
 use crate::ModelError;
 use crate::coding::Coding;
 use crate::datagen::write_json;
-use crate::dataset::Dataset;
+use crate::dataset::{Bucket, Dataset};
 use crate::flow::{FlowConfig, FlowModel};
 use crate::init::{InitConfig, InitModel, tokens_to_coefficients};
 use crate::layers::{initialise, noise};
@@ -98,33 +98,31 @@ pub struct ModelCard {
     pub instances: (usize, usize),
 }
 
-/// A bucket normalised and split for training.
+/// A bucket split for training, its rows and tokens normalised (the tokens
+/// are what the trained network reads).
 pub(crate) struct Split {
-    pub robots: usize,
-    pub obstacles: usize,
-    pub seeds: Vec<u64>,
-    pub robot_rows: Tensor,
-    pub obstacle_rows: Tensor,
-    pub tokens: Tensor,
+    pub data: Bucket,
     /// Instances `0..train` train, the rest validate.
     pub train: usize,
 }
 
 impl Split {
+    /// Robot rows, obstacle rows and tokens of instances `ids`.
     fn batch(&self, ids: &[u32]) -> Result<(Tensor, Tensor, Tensor), ModelError> {
         let ids = Tensor::new(ids, &Device::Cpu)?;
+        let d = &self.data;
         Ok((
-            self.robot_rows.index_select(&ids, 0)?,
-            self.obstacle_rows.index_select(&ids, 0)?,
-            self.tokens.index_select(&ids, 0)?,
+            d.robot_rows.index_select(&ids, 0)?,
+            d.obstacle_rows.index_select(&ids, 0)?,
+            d.tokens.index_select(&ids, 0)?,
         ))
     }
 }
 
 /// Statistics over every bucket of `data`.
-pub fn statistics(data: &[Dataset]) -> Result<Stats, ModelError> {
-    let buckets: Vec<_> = data.iter().flat_map(|d| &d.buckets).collect();
-    let cat = |f: &dyn Fn(&crate::dataset::Bucket) -> Tensor| -> Result<Tensor, ModelError> {
+pub fn statistics(data: &[(PathBuf, Dataset)]) -> Result<Stats, ModelError> {
+    let buckets: Vec<&Bucket> = data.iter().flat_map(|(_, d)| &d.buckets).collect();
+    let cat = |f: &dyn Fn(&Bucket) -> Tensor| -> Result<Tensor, ModelError> {
         let parts: Vec<Tensor> = buckets.iter().map(|b| f(b).flatten_to(1)).collect::<Result<_, _>>()?;
         let parts: Vec<Tensor> = parts.into_iter().filter(|t| t.dim(0).is_ok_and(|n| n > 0)).collect();
         if parts.is_empty() {
@@ -151,20 +149,22 @@ pub fn statistics(data: &[Dataset]) -> Result<Stats, ModelError> {
 }
 
 /// Normalises and splits every bucket.
-pub(crate) fn split(data: &[Dataset], stats: &Stats, fraction: f64) -> Result<Vec<Split>, ModelError> {
+pub(crate) fn split(data: &[(PathBuf, Dataset)], stats: &Stats, fraction: f64) -> Result<Vec<Split>, ModelError> {
     let mut out = Vec::new();
-    for b in data.iter().flat_map(|d| &d.buckets) {
+    for b in data.iter().flat_map(|(_, d)| &d.buckets) {
         if b.len() < 2 {
             continue;
         }
         let held = ((b.len() as f64 * fraction).ceil() as usize).clamp(1, b.len() - 1);
         out.push(Split {
-            robots: b.robots,
-            obstacles: b.obstacles,
-            seeds: b.seeds.clone(),
-            robot_rows: stats.robot.normalise(&b.robot_rows)?,
-            obstacle_rows: stats.obstacle.normalise(&b.obstacle_rows)?,
-            tokens: stats.token.normalise(&b.tokens)?,
+            data: Bucket {
+                robots: b.robots,
+                obstacles: b.obstacles,
+                seeds: b.seeds.clone(),
+                robot_rows: stats.robot.normalise(&b.robot_rows)?,
+                obstacle_rows: stats.obstacle.normalise(&b.obstacle_rows)?,
+                tokens: stats.token.normalise(&b.tokens)?,
+            },
             train: b.len() - held,
         });
     }
@@ -190,7 +190,7 @@ pub(crate) fn draw(splits: &[Split], rng: &mut ChaCha8Rng, tokens: usize) -> (us
             }
         })
         .unwrap_or(0);
-    let size = (tokens / splits[k].robots).max(1);
+    let size = (tokens / splits[k].data.robots).max(1);
     let ids = (0..size).map(|_| rng.random_range(0..splits[k].train) as u32).collect();
     (k, ids)
 }
@@ -199,8 +199,8 @@ pub(crate) fn draw(splits: &[Split], rng: &mut ChaCha8Rng, tokens: usize) -> (us
 pub(crate) fn validation_batches(splits: &[Split], tokens: usize) -> Vec<(usize, Vec<u32>)> {
     let mut out = Vec::new();
     for (k, s) in splits.iter().enumerate() {
-        let size = (tokens / s.robots).max(1);
-        let ids: Vec<u32> = (s.train as u32..s.seeds.len() as u32).collect();
+        let size = (tokens / s.data.robots).max(1);
+        let ids: Vec<u32> = (s.train as u32..s.data.len() as u32).collect();
         out.extend(ids.chunks(size).map(|c| (k, c.to_vec())));
     }
     out
@@ -354,9 +354,8 @@ pub fn train_flow(
     checkpoint_dir: &Path,
     progress: impl FnMut(usize, f64, Option<f64>),
 ) -> Result<TrainReport, ModelError> {
-    let datasets: Vec<Dataset> = data.iter().map(|(_, d)| d.clone()).collect();
-    let stats = statistics(&datasets)?;
-    let splits = split(&datasets, &stats, cfg.validation_fraction)?;
+    let stats = statistics(data)?;
+    let splits = split(data, &stats, cfg.validation_fraction)?;
     let mut vars = VarMap::new();
     let net = FlowModel::new(VarBuilder::from_varmap(&vars, DType::F32, &Device::Cpu), model)?;
     initialise(&vars, cfg.seed)?;
@@ -400,7 +399,7 @@ pub(crate) fn write_card(
         datasets: data.iter().map(|(p, d)| (p.display().to_string(), d.manifest.sha256.clone())).collect(),
         inputs,
         metrics: report.clone(),
-        instances: (splits.iter().map(|s| s.train).sum(), splits.iter().map(|s| s.seeds.len() - s.train).sum()),
+        instances: (splits.iter().map(|s| s.train).sum(), splits.iter().map(|s| s.data.len() - s.train).sum()),
     };
     write_json(&out.with_extension("json"), &card)
 }
@@ -415,16 +414,13 @@ pub struct InitData {
 }
 
 /// One bucket of initialiser training data.
+/// The SF side of one bucket of initialiser training data (its tensors,
+/// with the flow samples as tokens, are a [`Split`]).
 struct InitBucket {
     engine: Engine,
     sf: UnrolledSf,
     /// Prepared SF problems, their targets the flow samples.
     prepared: Vec<Prepared>,
-    /// Normalised sample tokens, `[N, n, W]`.
-    samples: Tensor,
-    /// Normalised robot and obstacle rows.
-    robot_rows: Tensor,
-    obstacle_rows: Tensor,
 }
 
 /// Trains the initialiser through `init.unroll` unrolled SF iterations on
@@ -443,54 +439,41 @@ pub fn train_init(
     let flow = crate::weights::load::<FlowConfig>(flow_path, "flow")?;
     let stats = flow.stats.clone();
     let flow_net = FlowModel::new(flow.vars, &flow.config)?;
-    let datasets: Vec<Dataset> = data.iter().map(|(_, d)| d.clone()).collect();
     let config =
-        datasets.first().map(|d| d.manifest.config.clone()).ok_or_else(|| ModelError::Config("no dataset".into()))?;
-    let all = split(&datasets, &stats, cfg.validation_fraction)?;
+        data.first().map(|(_, d)| d.manifest.config.clone()).ok_or_else(|| ModelError::Config("no dataset".into()))?;
+    let all = split(data, &stats, cfg.validation_fraction)?;
     // Keep per bucket the first `per_bucket` training and up to a quarter
     // as many held-out instances, and make their flow samples.
     let mut splits = Vec::new();
     let mut buckets = Vec::new();
     let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed ^ 0x1417);
     for s in all {
+        let (n, m) = (s.data.robots, s.data.obstacles);
         let train = s.train.min(samples.per_bucket);
-        let held = (samples.per_bucket / 4).max(1).min(s.seeds.len() - s.train);
+        let held = (samples.per_bucket / 4).max(1).min(s.data.len() - s.train);
         let ids: Vec<u32> = (0..train as u32).chain(s.train as u32..(s.train + held) as u32).collect();
         let (robots, obstacles, _) = s.batch(&ids)?;
-        let team = flowopt_planner::problem::Team::default_for(config.dimension()?, s.robots);
-        let engine = Engine::new(&team, s.obstacles, Objective::Projection, AmSettings::safety_filter())?;
+        let team = flowopt_planner::problem::Team::default_for(config.dimension()?, n);
+        let engine = Engine::new(&team, m, Objective::Projection, AmSettings::safety_filter())?;
         let sf = UnrolledSf::new(&engine, DType::F32)?;
         let coding = Coding::new(&team)?;
         let encoded = flow_net.encode(&robots, &obstacles)?;
-        let x0 = noise(&mut rng, &[ids.len(), s.robots, flow.config.token_width()], &Device::Cpu)?;
+        let x0 = noise(&mut rng, &[ids.len(), n, flow.config.token_width()], &Device::Cpu)?;
         let sampled = flow_net.sample(&x0, &encoded, samples.flow_steps, crate::flow::Solver::Euler)?;
         let raw = stats.token.denormalise(&sampled)?;
-        let width = flow.config.token_width() * s.robots;
+        let width = flow.config.token_width() * n;
         let raw = raw.flatten_all()?.to_vec1::<f32>()?;
         let mut prepared = Vec::with_capacity(ids.len());
         for (j, &id) in ids.iter().enumerate() {
-            let problem = config.problem(s.robots, s.obstacles, s.seeds[id as usize])?;
+            let problem = config.problem(n, m, s.data.seeds[id as usize])?;
             let sample = coding.decode(&coding.reference(&problem), &raw[j * width..(j + 1) * width]);
             prepared.push(engine.prepare(&problem, Some(&sample))?);
         }
-        let seeds = ids.iter().map(|&i| s.seeds[i as usize]).collect();
-        splits.push(Split {
-            robots: s.robots,
-            obstacles: s.obstacles,
-            seeds,
-            robot_rows: robots.clone(),
-            obstacle_rows: obstacles.clone(),
-            tokens: sampled.clone(),
-            train,
-        });
-        buckets.push(InitBucket {
-            engine,
-            sf,
-            prepared,
-            samples: sampled,
-            robot_rows: robots,
-            obstacle_rows: obstacles,
-        });
+        let seeds = ids.iter().map(|&i| s.data.seeds[i as usize]).collect();
+        let data =
+            Bucket { robots: n, obstacles: m, seeds, robot_rows: robots, obstacle_rows: obstacles, tokens: sampled };
+        splits.push(Split { data, train });
+        buckets.push(InitBucket { engine, sf, prepared });
     }
     let mut vars = VarMap::new();
     let net = InitModel::new(VarBuilder::from_varmap(&vars, DType::F32, &Device::Cpu), init)?;
@@ -503,12 +486,8 @@ pub fn train_init(
         checkpoint_dir,
         |k, ids, _rng| {
             let b = &buckets[k];
-            let idx = Tensor::new(ids, &Device::Cpu)?;
-            let out = net.forward(
-                &b.samples.index_select(&idx, 0)?,
-                &b.robot_rows.index_select(&idx, 0)?,
-                &b.obstacle_rows.index_select(&idx, 0)?,
-            )?;
+            let (robots, obstacles, samples) = splits[k].batch(ids)?;
+            let out = net.forward(&samples, &robots, &obstacles)?;
             let chosen: Vec<&Prepared> = ids.iter().map(|&i| &b.prepared[i as usize]).collect();
             let batch = b.sf.batch(&b.engine, &chosen)?;
             let delta = tokens_to_coefficients(&stats.token.scale(&out.delta)?, init.dim, init.n_xi)?;
