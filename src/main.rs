@@ -7,6 +7,7 @@ mod bench_ipc;
 mod daemon_args;
 mod datagen;
 mod demo;
+mod eval;
 mod instances;
 mod methods;
 mod serve;
@@ -51,6 +52,8 @@ enum Command {
     Datagen(datagen::DatagenArgs),
     /// Train the flow policy or the SF initialiser.
     Train(train::TrainArgs),
+    /// Compare the methods on seeded test instances; write docs/RESULTS.md and figures.
+    Eval(eval::EvalArgs),
 }
 
 fn main() -> Result<()> {
@@ -79,5 +82,6 @@ fn main() -> Result<()> {
         Command::BenchIpc(args) => bench_ipc::run(args),
         Command::Datagen(args) => datagen::run(args),
         Command::Train(args) => train::run(args),
+        Command::Eval(args) => eval::run(args),
     }
 }

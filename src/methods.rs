@@ -8,7 +8,7 @@ use clap::ValueEnum;
 use std::path::PathBuf;
 
 use flowopt_models::flow::Solver;
-use flowopt_models::pipeline::{FlowOpt, PipelineOutcome, PipelineSettings, StageTimes};
+use flowopt_models::pipeline::{FlowOpt, PipelineOutcome, PipelineSettings, Query, StageTimes};
 use flowopt_planner::am::{AmOutcome, AmSettings, Engine, Objective, Residuals, Stop};
 use flowopt_planner::metrics::Metrics;
 use flowopt_planner::plan::JointPlan;
@@ -18,7 +18,7 @@ use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
 
 /// A planning method.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, ValueEnum, Serialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum Method {
     /// The from-scratch AM optimiser (smoothness cost, cold start).
@@ -33,6 +33,18 @@ pub enum Method {
     /// The pipeline with the SF started from the flow samples themselves
     /// (zero multiplier): the paper's ablation.
     FlowNoInit,
+}
+
+impl Method {
+    /// Its name on the command line and in reports.
+    pub fn name(self) -> &'static str {
+        match self {
+            Method::Baseline => "baseline",
+            Method::SafetyFilter => "safety-filter",
+            Method::Flowopt => "flowopt",
+            Method::FlowNoInit => "flow-no-init",
+        }
+    }
 }
 
 /// The learned planner's weights and pipeline settings on the command line.
@@ -59,6 +71,10 @@ pub struct LearnedArgs {
     /// Scale of the flow's initial noise.
     #[arg(long, default_value_t = 1.0)]
     pub temperature: f64,
+    /// Weight of the correction's smoothness in the safety filter's metric
+    /// (`Objective::SmoothProjection`; 0 is the paper's plain projection).
+    #[arg(long, default_value_t = flowopt_models::pipeline::DEFAULT_SF_SMOOTHING)]
+    pub sf_smoothing: f64,
 }
 
 /// Flow integrator on the command line.
@@ -71,6 +87,15 @@ pub enum SolverArg {
 }
 
 impl LearnedArgs {
+    /// The safety filter's objective.
+    pub fn sf_objective(&self) -> Objective {
+        if self.sf_smoothing > 0.0 {
+            Objective::SmoothProjection { weight: self.sf_smoothing }
+        } else {
+            Objective::Projection
+        }
+    }
+
     /// The pipeline settings for `method`.
     pub fn settings(&self, method: Method) -> PipelineSettings {
         PipelineSettings {
@@ -148,6 +173,12 @@ pub struct Record {
     pub iterations_to_0_001: Option<usize>,
     /// Pipeline stage times (learned methods).
     pub stages: Option<StageTimes>,
+    /// The returned plan's coefficients.
+    #[serde(skip)]
+    pub xi: Vec<f64>,
+    /// Residuals of every iterate of the untimed residual study.
+    #[serde(skip)]
+    pub study: Vec<Residuals>,
 }
 
 /// What an engine is used for.
@@ -192,12 +223,13 @@ impl Planner {
     fn engine(&mut self, team: &Team, obstacles: usize, usage: Use) -> Result<&Engine> {
         let key = engine_key(team, obstacles, usage);
         if !self.engines.contains_key(&key) {
+            let filter = self.learned_args.as_ref().map_or(Objective::Projection, LearnedArgs::sf_objective);
             let (objective, settings) = match usage {
-                Use::Filter => (Objective::Projection, self.overrides.apply(AmSettings::safety_filter())),
+                Use::Filter => (filter, self.overrides.apply(AmSettings::safety_filter())),
                 Use::Optimise => (Objective::smoothness(), self.overrides.apply(AmSettings::optimiser())),
                 Use::StudyFilter | Use::StudyOptimise => {
                     let (objective, base) = if usage == Use::StudyFilter {
-                        (Objective::Projection, AmSettings::safety_filter())
+                        (filter, AmSettings::safety_filter())
                     } else {
                         (Objective::smoothness(), AmSettings::optimiser())
                     };
@@ -225,11 +257,38 @@ impl Planner {
         Ok(())
     }
 
+    /// Why the learned methods cannot plan for `team` (no weights, or
+    /// weights for another dimension or basis), or `None` if they can.
+    pub fn learned_unavailable(&mut self, team: &Team) -> Option<String> {
+        if let Err(e) = self.load_learned() {
+            return Some(format!("{e:#}"));
+        }
+        self.learned.as_ref()?.check(team).err().map(|e| e.to_string())
+    }
+
     /// Plans `problem` with a learned method; returns the outcome and the
     /// wall time (ms). `seed` seeds the flow noise.
     pub fn plan_learned(&mut self, method: Method, problem: &Problem, seed: u64) -> Result<(PipelineOutcome, f64)> {
-        let key = engine_key(&problem.team, problem.obstacles.len(), Use::Filter);
-        self.engine(&problem.team, problem.obstacles.len(), Use::Filter)?;
+        let (mut outcomes, ms) = self.plan_learned_batch(method, std::slice::from_ref(problem), 0, seed)?;
+        Ok((outcomes.pop().context("the pipeline returned no plan")?, ms))
+    }
+
+    /// Plans `problems` (one team shape and obstacle count) together with a
+    /// learned method, hiding each problem's last `hidden` obstacles from
+    /// the networks (the safety filter still enforces them); returns the
+    /// outcomes and the batch's wall time (ms).
+    pub fn plan_learned_batch(
+        &mut self,
+        method: Method,
+        problems: &[Problem],
+        hidden: usize,
+        seed: u64,
+    ) -> Result<(Vec<PipelineOutcome>, f64)> {
+        let Some(first) = problems.first() else { return Ok((Vec::new(), 0.0)) };
+        let obstacles = first.obstacles.len();
+        anyhow::ensure!(hidden <= obstacles, "cannot hide {hidden} of {obstacles} obstacles");
+        let key = engine_key(&first.team, obstacles, Use::Filter);
+        self.engine(&first.team, obstacles, Use::Filter)?;
         self.load_learned()?;
         let (Some(model), Some(args)) = (self.learned.as_ref(), self.learned_args.as_ref()) else {
             anyhow::bail!("the learned planner is not loaded");
@@ -237,22 +296,40 @@ impl Planner {
         if method == Method::Flowopt && !model.has_init() {
             anyhow::bail!("{} is missing: flowopt needs the SF initialiser", args.init_weights.display());
         }
+        let seen: Vec<Problem> = problems
+            .iter()
+            .map(|p| {
+                let mut seen = p.clone();
+                seen.obstacles.truncate(obstacles - hidden);
+                seen
+            })
+            .collect();
+        let queries: Vec<Query> = seen.iter().zip(problems).map(|(seen, enforced)| Query { seen, enforced }).collect();
         let sf = &self.engines[&key];
         let start = Instant::now();
-        let outcome = model.plan(problem, sf, &args.settings(method), seed, None).context("running the pipeline")?;
-        Ok((outcome, start.elapsed().as_secs_f64() * 1e3))
+        let outcomes =
+            model.plan_batch(&queries, sf, &args.settings(method), seed, None).context("running the pipeline")?;
+        Ok((outcomes, start.elapsed().as_secs_f64() * 1e3))
     }
 
     /// Plans `problem` with `method`, timing the method's own stage; the
     /// residual study starts from the same point as the timed run.
     pub fn run(&mut self, method: Method, problem: &Problem, seed: u64) -> Result<Record> {
+        self.run_hiding(method, problem, 0, seed)
+    }
+
+    /// [`Planner::run`] with the problem's last `hidden` obstacles hidden
+    /// from the learned methods' networks (the robustness study; the
+    /// optimisers see everything).
+    pub fn run_hiding(&mut self, method: Method, problem: &Problem, hidden: usize, seed: u64) -> Result<Record> {
         let obstacles = problem.obstacles.len();
         if matches!(method, Method::Flowopt | Method::FlowNoInit) {
-            let (out, time_ms) = self.plan_learned(method, problem, seed)?;
+            let (mut outs, time_ms) = self.plan_learned_batch(method, std::slice::from_ref(problem), hidden, seed)?;
+            let out = outs.pop().context("the pipeline returned no plan")?;
             let chosen = &out.refined[out.chosen];
             let study =
                 self.engine(&problem.team, obstacles, Use::StudyFilter)?.run(&chosen.prepared, chosen.start.clone());
-            return Ok(Record::of(problem, chosen.outcome.clone(), time_ms, &study.history, Some(out.times)));
+            return Ok(Record::of(problem, chosen.outcome.clone(), time_ms, study.history, Some(out.times)));
         }
         let optimiser = self.engine(&problem.team, obstacles, Use::Optimise)?;
         let start = Instant::now();
@@ -274,7 +351,7 @@ impl Planner {
         let engine = self.engine(&problem.team, obstacles, usage)?;
         let prepared = engine.prepare(problem, sample.as_deref()).context("preparing the residual study")?;
         let study = engine.run(&prepared, engine.cold_start(&prepared)).history;
-        Ok(Record::of(problem, outcome, time_ms, &study, None))
+        Ok(Record::of(problem, outcome, time_ms, study, None))
     }
 }
 
@@ -283,7 +360,7 @@ impl Record {
         problem: &Problem,
         outcome: AmOutcome,
         time_ms: f64,
-        study: &[Residuals],
+        study: Vec<Residuals>,
         stages: Option<StageTimes>,
     ) -> Self {
         let plan = flowopt_planner::plan::JointPlan::new(&problem.team, outcome.state.xi.clone());
@@ -297,9 +374,11 @@ impl Record {
             min_clearance: metrics.min_clearance(),
             primal_residual: outcome.primal,
             stop: outcome.stop,
-            iterations_to_0_01: first_below(study, 0.01),
-            iterations_to_0_001: first_below(study, 0.001),
+            iterations_to_0_01: first_below(&study, 0.01),
+            iterations_to_0_001: first_below(&study, 0.001),
             stages,
+            xi: plan.coeffs,
+            study,
         }
     }
 }

@@ -142,8 +142,15 @@ pub struct LearnedConfig {
     /// Candidates refined by the safety filter.
     #[serde(default = "default_top_k")]
     pub top_k: usize,
+    /// Weight of the correction's smoothness in the safety filter's metric
+    /// (`Objective::SmoothProjection`; 0: the paper's plain projection).
+    #[serde(default = "default_sf_smoothing")]
+    pub sf_smoothing: f64,
 }
 
+fn default_sf_smoothing() -> f64 {
+    flowopt_models::pipeline::DEFAULT_SF_SMOOTHING
+}
 fn default_candidates() -> usize {
     16
 }
@@ -197,6 +204,11 @@ impl TeamConfig {
         }
         if !(self.replan_hz.is_finite() && self.replan_hz >= 0.0) {
             return Err(bad("replan_hz must be 0 or positive".into()));
+        }
+        if let Some(l) = &self.learned
+            && !(l.sf_smoothing.is_finite() && l.sf_smoothing >= 0.0)
+        {
+            return Err(bad("learned.sf_smoothing must be 0 or positive".into()));
         }
         Ok(team)
     }

@@ -131,6 +131,15 @@ struct Previous {
     obstacles: usize,
 }
 
+/// A team's learned planner: the networks, the pipeline settings and the
+/// safety filters (one per obstacle count) in the configured metric.
+#[derive(Debug)]
+struct Learned {
+    model: FlowOpt,
+    settings: PipelineSettings,
+    filters: Vec<Engine>,
+}
+
 /// A team's preloaded engines and its planning state.
 #[derive(Debug)]
 pub struct TeamPlanner {
@@ -143,8 +152,8 @@ pub struct TeamPlanner {
     /// Safety filters, one per obstacle count.
     filters: Vec<Engine>,
     fitter: Fitter,
-    /// The learned planner and its settings, if configured.
-    learned: Option<(FlowOpt, PipelineSettings)>,
+    /// The learned planner, if configured.
+    learned: Option<Learned>,
     /// Cold plans made so far (seeds the flow noise).
     cold_plans: u64,
     previous: Option<Previous>,
@@ -167,10 +176,8 @@ impl TeamPlanner {
         };
         let buffered = |s: AmSettings| AmSettings { verify_margin: TRACKING_BUFFER, verify_skip: DENSE_FACTOR, ..s };
         let optimisers = engines(Objective::smoothness(), buffered(AmSettings::optimiser()))?;
-        let filters = engines(
-            Objective::Projection,
-            buffered(AmSettings { max_iterations: WARM_ITERATIONS, ..AmSettings::safety_filter() }),
-        )?;
+        let filter_settings = buffered(AmSettings { max_iterations: WARM_ITERATIONS, ..AmSettings::safety_filter() });
+        let filters = engines(Objective::Projection, filter_settings)?;
         let fitter = Fitter::new(optimisers[0].basis()).map_err(EngineError::Kkt)?;
         let learned = match &config.learned {
             Some(l) => {
@@ -183,7 +190,13 @@ impl TeamPlanner {
                     use_init: model.has_init(),
                     ..PipelineSettings::default()
                 };
-                Some((model, settings))
+                let objective = if l.sf_smoothing > 0.0 {
+                    Objective::SmoothProjection { weight: l.sf_smoothing }
+                } else {
+                    Objective::Projection
+                };
+                let filters = engines(objective, filter_settings)?;
+                Some(Learned { model, settings, filters })
             }
             None => None,
         };
@@ -292,10 +305,10 @@ impl TeamPlanner {
     /// A cold plan from the learned pipeline, if the team has one and its
     /// plan verifies (or the deadline stopped it).
     fn learned_plan(&mut self, problem: &Problem, deadline: Instant, timings: &mut StageTimings) -> Option<AmOutcome> {
-        let (model, settings) = self.learned.as_ref()?;
+        let Learned { model, settings, filters } = self.learned.as_ref()?;
         self.cold_plans += 1;
         let _span = info_span!("learned").entered();
-        let sf = &self.filters[problem.obstacles.len()];
+        let sf = &filters[problem.obstacles.len()];
         let out = model.plan(problem, sf, settings, self.cold_plans, Some(deadline)).ok()?;
         let us_of = |ms: f64| (ms * 1e3).clamp(0.0, u32::MAX as f64) as u32;
         timings.sample_us = us_of(out.times.sample_ms).max(1);

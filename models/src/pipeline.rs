@@ -17,10 +17,19 @@ use serde::{Deserialize, Serialize};
 
 use crate::ModelError;
 use crate::coding::{Coding, conditions, obstacle_width, robot_width};
-use crate::flow::{FlowConfig, FlowModel, Solver};
+use crate::flow::{Encoded, FlowConfig, FlowModel, Solver};
 use crate::init::{InitConfig, InitModel};
 use crate::layers::noise;
 use crate::weights::{Stats, load};
+
+/// The default weight of the safety filter's smoothness-weighted metric
+/// (`Objective::SmoothProjection`) for the pipeline. Measured on 20 unseen
+/// 2D instances each (docs/LEARNED.md): at 0 (the paper's plain projection)
+/// the filter's minimal-distance repairs add sharp detours (smoothness 5-6x
+/// the optimiser's at 16 robots); 3 brings it within 15% at 8, 16 and 32
+/// robots with every instance solved; 5 and above lose 32-robot instances
+/// to the iteration cap.
+pub const DEFAULT_SF_SMOOTHING: f64 = 3.0;
 
 /// How the pipeline runs.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -49,7 +58,25 @@ impl Default for PipelineSettings {
     }
 }
 
-/// Wall time of every stage (ms).
+/// One problem for the pipeline: the networks are conditioned on `seen`,
+/// the safety filter enforces `enforced`. Both are the same problem in
+/// normal use; the robustness study hides an obstacle from the networks
+/// (`seen` lacks it) that the filter must still avoid.
+#[derive(Debug, Clone, Copy)]
+pub struct Query<'a> {
+    /// What the flow policy and the initialiser are conditioned on.
+    pub seen: &'a Problem,
+    /// What the safety filter enforces (same team, starts and goals).
+    pub enforced: &'a Problem,
+}
+
+impl<'a> From<&'a Problem> for Query<'a> {
+    fn from(problem: &'a Problem) -> Self {
+        Query { seen: problem, enforced: problem }
+    }
+}
+
+/// Wall time of every stage (ms); for a batch, the whole batch's.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
 pub struct StageTimes {
     /// Encoding, noise and flow integration.
@@ -157,75 +184,135 @@ impl FlowOpt {
         Ok(())
     }
 
-    /// Samples `count` normalised token sets for `problem` with noise seeded
-    /// by `seed`; returns them `[count, n, W]` with the normalised
-    /// condition rows.
+    /// Samples `count` normalised token sets per query with noise seeded
+    /// by `seed`, all queries in one batch; returns them `[P count, n, W]`
+    /// (query-major) with the normalised condition rows `[P, n, .]` and
+    /// `[P, m, .]`.
     fn sample(
         &self,
-        problem: &Problem,
+        queries: &[Query<'_>],
         count: usize,
         settings: &PipelineSettings,
         seed: u64,
     ) -> Result<(Tensor, Tensor, Tensor), ModelError> {
-        let dim = problem.team.dim.axes();
-        let (n, m) = (problem.robots(), problem.obstacles.len());
-        let (robot_rows, obstacle_rows) = conditions(problem);
+        let first = queries[0].seen;
+        let dim = first.team.dim.axes();
+        let (p, n, m) = (queries.len(), first.robots(), first.obstacles.len());
+        let (mut robot_rows, mut obstacle_rows) = (Vec::new(), Vec::new());
+        for q in queries {
+            let (r, o) = conditions(q.seen);
+            robot_rows.extend(r);
+            obstacle_rows.extend(o);
+        }
         let robots =
-            self.stats.robot.normalise(&Tensor::from_vec(robot_rows, (1, n, robot_width(dim)), &Device::Cpu)?)?;
-        let obstacles = self
-            .stats
-            .obstacle
-            .normalise(&Tensor::from_vec(obstacle_rows, (1, m, obstacle_width(dim)), &Device::Cpu)?)?
-            .broadcast_as((count, m, obstacle_width(dim)))?
-            .contiguous()?;
+            self.stats.robot.normalise(&Tensor::from_vec(robot_rows, (p, n, robot_width(dim)), &Device::Cpu)?)?;
+        let obstacles = self.stats.obstacle.normalise(&Tensor::from_vec(
+            obstacle_rows,
+            (p, m, obstacle_width(dim)),
+            &Device::Cpu,
+        )?)?;
         let encoded = self.flow.encode(&robots, &obstacles)?;
+        // One problem's robot conditioning broadcasts over its candidates
+        // (the per-robot adaLN then runs once, not once per candidate);
+        // several problems need it per candidate.
+        let encoded = Encoded {
+            robots: if p == 1 { encoded.robots } else { repeat_each(&encoded.robots, count)? },
+            obstacles: encoded.obstacles.as_ref().map(|o| repeat_each(o, count)).transpose()?,
+        };
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         let x0 =
-            (noise(&mut rng, &[count, n, self.flow.config().token_width()], &Device::Cpu)? * settings.temperature)?;
+            (noise(&mut rng, &[p * count, n, self.flow.config().token_width()], &Device::Cpu)? * settings.temperature)?;
         let tokens = self.flow.sample(&x0, &encoded, settings.steps, settings.solver)?;
         Ok((tokens, robots, obstacles))
     }
 
-    /// Plans `problem` with the safety filter `sf` (built for its team and
-    /// obstacle count); `seed` seeds the flow noise. With a `deadline`, the
-    /// safety filter stops there ([`Stop::Deadline`]) with its best iterate.
-    pub fn plan(
+    /// Plans one problem (see [`FlowOpt::plan_batch`]).
+    pub fn plan<'a>(
         &self,
-        problem: &Problem,
+        query: impl Into<Query<'a>>,
         sf: &Engine,
         settings: &PipelineSettings,
         seed: u64,
         deadline: Option<Instant>,
     ) -> Result<PipelineOutcome, ModelError> {
-        self.check(&problem.team)?;
+        let mut outcomes = self.plan_batch(&[query.into()], sf, settings, seed, deadline)?;
+        outcomes.pop().ok_or_else(|| ModelError::Config("the pipeline returned no plan".into()))
+    }
+
+    /// Plans several problems of one team shape and obstacle count together:
+    /// every candidate of every problem is sampled in one batch, the
+    /// initialiser runs once over all refined candidates, and the safety
+    /// filter `sf` (built for the enforced problems' team and obstacle
+    /// count) refines them all on `settings.threads` threads. `seed` seeds
+    /// the flow noise. With a `deadline`, the safety filter stops there
+    /// ([`Stop::Deadline`]) with its best iterate. Returns one outcome per
+    /// query, in order; their stage times are the batch's.
+    pub fn plan_batch(
+        &self,
+        queries: &[Query<'_>],
+        sf: &Engine,
+        settings: &PipelineSettings,
+        seed: u64,
+        deadline: Option<Instant>,
+    ) -> Result<Vec<PipelineOutcome>, ModelError> {
+        let Some(first) = queries.first() else { return Ok(Vec::new()) };
+        for q in queries {
+            self.check(&q.enforced.team)?;
+            if q.seen.team != first.seen.team
+                || q.enforced.team != q.seen.team
+                || q.seen.obstacles.len() != first.seen.obstacles.len()
+            {
+                return Err(ModelError::Config("a batch needs one team shape and one count of seen obstacles".into()));
+            }
+        }
         let started = Instant::now();
         let count = settings.candidates.max(1);
-        let (tokens, robots, obstacles) = self.sample(problem, count, settings, seed)?;
+        let top_k = settings.top_k.clamp(1, count);
+        let (tokens, robots, obstacles) = self.sample(queries, count, settings, seed)?;
         let raw = self.stats.token.denormalise(&tokens)?.flatten_all()?.to_vec1::<f32>()?;
         let sampled = Instant::now();
 
-        let coding = Coding::new(&problem.team)?;
-        let reference = coding.reference(problem);
-        let width = raw.len() / count;
-        let samples: Vec<Vec<f64>> = raw.chunks_exact(width).map(|t| coding.decode(&reference, t)).collect();
-        let probe = sf.prepare(problem, Some(&samples[0]))?;
-        let mut order: Vec<(usize, f64)> = samples.iter().map(|x| sf.primal_residual(&probe, x)).enumerate().collect();
-        order.sort_by(|a, b| a.1.total_cmp(&b.1));
-        order.truncate(settings.top_k.clamp(1, count));
+        let coding = Coding::new(&first.enforced.team)?;
+        let width = raw.len() / (count * queries.len());
+        let mut references = Vec::with_capacity(queries.len());
+        let mut samples = Vec::with_capacity(queries.len());
+        // Refinement jobs of every query: (query, sample index, sample primal).
+        let mut jobs = Vec::with_capacity(queries.len() * top_k);
+        for (qi, q) in queries.iter().enumerate() {
+            let reference = coding.reference(q.enforced);
+            let decoded: Vec<Vec<f64>> = raw[qi * count * width..(qi + 1) * count * width]
+                .chunks_exact(width)
+                .map(|t| coding.decode(&reference, t))
+                .collect();
+            let probe = sf.prepare(q.enforced, Some(&decoded[0]))?;
+            let mut order: Vec<(usize, f64)> =
+                decoded.iter().map(|x| sf.primal_residual(&probe, x)).enumerate().collect();
+            order.sort_by(|a, b| a.1.total_cmp(&b.1));
+            jobs.extend(order.into_iter().take(top_k).map(|(i, primal)| (qi, i, primal)));
+            references.push(reference);
+            samples.push(decoded);
+        }
         let ranked = Instant::now();
 
-        let mut starts: Vec<AmState> = order
+        let mut starts: Vec<AmState> = jobs
             .iter()
-            .map(|&(i, _)| AmState { xi: samples[i].clone(), lambda: vec![0.0; samples[i].len()] })
+            .map(|&(qi, i, _)| AmState { xi: samples[qi][i].clone(), lambda: vec![0.0; samples[qi][i].len()] })
             .collect();
         if let (Some(init), true) = (&self.init, settings.use_init) {
-            let ids = Tensor::new(order.iter().map(|&(i, _)| i as u32).collect::<Vec<_>>().as_slice(), &Device::Cpu)?;
-            let k = order.len();
-            let out = init.forward(&tokens.index_select(&ids, 0)?, &robots, &obstacles.narrow(0, 0, k)?)?;
+            let index = |f: &dyn Fn(&(usize, usize, f64)) -> usize| {
+                Tensor::new(jobs.iter().map(|j| f(j) as u32).collect::<Vec<_>>().as_slice(), &Device::Cpu)
+            };
+            let sample_ids = index(&|&(qi, i, _)| qi * count + i)?;
+            let query_ids = index(&|&(qi, _, _)| qi)?;
+            let out = init.forward(
+                &tokens.index_select(&sample_ids, 0)?,
+                &robots.index_select(&query_ids, 0)?,
+                &obstacles.index_select(&query_ids, 0)?,
+            )?;
             let delta = self.stats.token.scale(&out.delta)?.flatten_all()?.to_vec1::<f32>()?;
             let lambda = out.lambda.flatten_all()?.to_vec1::<f32>()?;
-            let zero = vec![0.0; reference.len()];
-            let per = lambda.len() / k;
+            let zero = vec![0.0; references[0].len()];
+            let per = lambda.len() / jobs.len();
             for (j, start) in starts.iter_mut().enumerate() {
                 let moved = coding.decode(&zero, &delta[j * width..(j + 1) * width]);
                 for (x, d) in start.xi.iter_mut().zip(moved) {
@@ -236,60 +323,84 @@ impl FlowOpt {
         }
         let initialised = Instant::now();
 
-        let jobs: Vec<(usize, f64, AmState)> =
-            order.iter().zip(starts).map(|(&(i, primal), s)| (i, primal, s)).collect();
-        let refined = refine(problem, sf, &samples, jobs, settings.threads, deadline)?;
+        let mut refined = refine(queries, sf, &samples, &jobs, starts, settings.threads, deadline)?.into_iter();
         let filtered = Instant::now();
 
-        let verified: Vec<usize> = (0..refined.len()).filter(|&j| refined[j].outcome.stop == Stop::Verified).collect();
-        let chosen = if verified.is_empty() {
-            (0..refined.len())
-                .min_by(|&a, &b| refined[a].outcome.primal.total_cmp(&refined[b].outcome.primal))
-                .unwrap_or(0)
-        } else {
-            verified
-                .iter()
-                .copied()
-                .min_by(|&a, &b| refined[a].smoothness.total_cmp(&refined[b].smoothness))
-                .unwrap_or(0)
-        };
+        let mut outcomes = Vec::with_capacity(queries.len());
+        for samples in samples {
+            let mut mine: Vec<Refined> = refined.by_ref().take(top_k).collect();
+            for (rank, r) in mine.iter_mut().enumerate() {
+                r.rank = rank;
+            }
+            let (chosen, verified) = select(&mine);
+            outcomes.push(PipelineOutcome { refined: mine, chosen, verified, times: StageTimes::default(), samples });
+        }
         let done = Instant::now();
         let ms = |a: Instant, b: Instant| (b - a).as_secs_f64() * 1e3;
-        Ok(PipelineOutcome {
-            chosen,
-            verified: !verified.is_empty(),
-            times: StageTimes {
-                sample_ms: ms(started, sampled),
-                rank_ms: ms(sampled, ranked),
-                init_ms: ms(ranked, initialised),
-                filter_ms: ms(initialised, filtered),
-                select_ms: ms(filtered, done),
-                total_ms: ms(started, done),
-            },
-            refined,
-            samples,
-        })
+        let times = StageTimes {
+            sample_ms: ms(started, sampled),
+            rank_ms: ms(sampled, ranked),
+            init_ms: ms(ranked, initialised),
+            filter_ms: ms(initialised, filtered),
+            select_ms: ms(filtered, done),
+            total_ms: ms(started, done),
+        };
+        for o in &mut outcomes {
+            o.times = times;
+        }
+        Ok(outcomes)
     }
 }
 
-/// Runs the safety filter on every job (`(sample index, sample primal,
-/// start)`, in rank order) on `threads` threads.
+/// The refined candidate to return, and whether it is verified: the
+/// verified one with the lowest smoothness, or else the one with the
+/// lowest primal residual.
+fn select(refined: &[Refined]) -> (usize, bool) {
+    let verified: Vec<usize> = (0..refined.len()).filter(|&j| refined[j].outcome.stop == Stop::Verified).collect();
+    let chosen = if verified.is_empty() {
+        (0..refined.len()).min_by(|&a, &b| refined[a].outcome.primal.total_cmp(&refined[b].outcome.primal))
+    } else {
+        verified.iter().copied().min_by(|&a, &b| refined[a].smoothness.total_cmp(&refined[b].smoothness))
+    };
+    (chosen.unwrap_or(0), !verified.is_empty())
+}
+
+/// `[P, ...]` -> `[P count, ...]`, every row repeated `count` times in a row.
+fn repeat_each(t: &Tensor, count: usize) -> candle_core::Result<Tensor> {
+    if count == 1 {
+        return Ok(t.clone());
+    }
+    let mut dims = t.dims().to_vec();
+    let rows = dims[0];
+    dims.insert(1, count);
+    let mut flat = dims.clone();
+    flat.remove(1);
+    flat[0] = rows * count;
+    t.unsqueeze(1)?.broadcast_as(dims)?.contiguous()?.reshape(flat)
+}
+
+/// Runs the safety filter on every job (`(query, sample index, sample
+/// primal)`, grouped by query, in rank order) from its start, on `threads`
+/// threads.
 fn refine(
-    problem: &Problem,
+    queries: &[Query<'_>],
     sf: &Engine,
-    samples: &[Vec<f64>],
-    jobs: Vec<(usize, f64, AmState)>,
+    samples: &[Vec<Vec<f64>>],
+    jobs: &[(usize, usize, f64)],
+    starts: Vec<AmState>,
     threads: usize,
     deadline: Option<Instant>,
 ) -> Result<Vec<Refined>, ModelError> {
-    crate::runtime::strided(jobs.len(), threads, |rank| {
-        let (i, primal, start) = &jobs[rank];
-        let prepared = sf.prepare(problem, Some(&samples[*i]))?;
+    crate::runtime::strided(jobs.len(), threads, |j| {
+        let (qi, i, primal) = jobs[j];
+        let problem = queries[qi].enforced;
+        let prepared = sf.prepare(problem, Some(&samples[qi][i]))?;
+        let start = &starts[j];
         let outcome = match deadline {
             Some(d) => sf.run_until(&prepared, start.clone(), d),
             None => sf.run(&prepared, start.clone()),
         };
         let smoothness = JointPlan::new(&problem.team, outcome.state.xi.clone()).smoothness(problem.team.samples);
-        Ok(Some(Refined { rank, sample_primal: *primal, prepared, start: start.clone(), outcome, smoothness }))
+        Ok(Some(Refined { rank: 0, sample_primal: primal, prepared, start: start.clone(), outcome, smoothness }))
     })
 }

@@ -197,8 +197,17 @@ mod tests {
 
     #[test]
     fn the_unrolled_filter_equals_the_planners_filter() {
+        unrolled_equals_planner(Objective::Projection);
+    }
+
+    #[test]
+    fn the_unrolled_smooth_projection_equals_the_planners() {
+        unrolled_equals_planner(Objective::SmoothProjection { weight: 3.0 });
+    }
+
+    fn unrolled_equals_planner(objective: Objective) {
         let team = Team::default_for(Dim::Two, 6);
-        let engine = Engine::new(&team, 2, Objective::Projection, AmSettings::safety_filter()).unwrap();
+        let engine = Engine::new(&team, 2, objective, AmSettings::safety_filter()).unwrap();
         let sf = UnrolledSf::new(&engine, DType::F64).unwrap();
         let reference = SmoothReference::new(&team).unwrap();
         let mut rng = ChaCha8Rng::seed_from_u64(3);

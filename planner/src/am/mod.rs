@@ -73,6 +73,15 @@ const RESTART_AMPLITUDE: f64 = 0.5;
 pub enum Objective {
     /// The safety filter: `c = 1/2 ||xi_bar - xi||^2` for a given sample `xi`.
     Projection,
+    /// The safety filter in a smoothness-weighted metric:
+    /// `c = 1/2 (xi_bar - xi)^T (I + weight Q) (xi_bar - xi)` with `Q` the
+    /// per-robot Gram matrix of the squared accelerations at the K samples
+    /// (physical units), so repairs prefer smooth detours to sharp ones.
+    /// `weight = 0` is [`Objective::Projection`].
+    SmoothProjection {
+        /// Weight of the smoothness of the correction against its size.
+        weight: f64,
+    },
     /// The from-scratch optimiser: `c = 1/2 weight * sum ||p''(t_k)||^2`
     /// (physical units).
     Smoothness {
@@ -183,6 +192,8 @@ pub struct Engine {
     fitter: Fitter,
     /// The six boundary rows, `6 x n_xi`.
     boundary_rows: Vec<f64>,
+    /// The per-robot cost Hessian `C`, `n_xi x n_xi`.
+    cost: Vec<f64>,
 }
 
 /// Per-problem data the iterations read.
@@ -190,7 +201,8 @@ pub struct Engine {
 pub struct Prepared {
     /// Per level: `K12_diff (b_i - b_mean) + K12_mean b_mean`, `[axis][robot][n_xi]`.
     beta: Vec<Vec<f64>>,
-    /// Linear cost term (the SF sample), `[axis][robot][coef]`; empty for the optimiser.
+    /// Linear cost term (the SF sample, or `C` times it for
+    /// [`Objective::SmoothProjection`]), `[axis][robot][coef]`; empty for the optimiser.
     target: Vec<f64>,
     /// The cold-start coefficients (the sample for the SF).
     cold: Vec<f64>,
@@ -235,7 +247,8 @@ impl Prepared {
         &self.beta[level.min(self.beta.len() - 1)]
     }
 
-    /// The SF sample (empty for the optimiser), `[axis][robot][coef]`.
+    /// The cost's linear term: the SF sample, or `C` times it for
+    /// [`Objective::SmoothProjection`] (empty for the optimiser), `[axis][robot][coef]`.
     pub fn target(&self) -> &[f64] {
         &self.target
     }
@@ -292,12 +305,15 @@ impl Engine {
         );
         let gram = basis.gram(FIRST_CONSTRAINED_SAMPLE);
         let boundary = basis.boundary_rows();
-        let cost = match objective {
-            Objective::Projection => (0..n_xi * n_xi).map(|i| f64::from(i % (n_xi + 1) == 0)).collect(),
-            Objective::Smoothness { weight } => {
-                let scale = weight / team.horizon.powi(4);
-                basis.acceleration_gram().iter().map(|v| v * scale).collect::<Vec<f64>>()
-            }
+        let identity = (0..n_xi * n_xi).map(|i| f64::from(i % (n_xi + 1) == 0));
+        let smoothness = |weight: f64| {
+            let scale = weight / team.horizon.powi(4);
+            basis.acceleration_gram().into_iter().map(move |v| v * scale)
+        };
+        let cost: Vec<f64> = match objective {
+            Objective::Projection => identity.collect(),
+            Objective::SmoothProjection { weight } => identity.zip(smoothness(weight)).map(|(i, q)| i + q).collect(),
+            Objective::Smoothness { weight } => smoothness(weight).collect(),
         };
         let levels = settings
             .rho
@@ -327,6 +343,7 @@ impl Engine {
             reference,
             fitter,
             boundary_rows: boundary,
+            cost,
         })
     }
 
@@ -394,16 +411,27 @@ impl Engine {
                 out
             })
             .collect();
-        let target = match (self.objective, target) {
-            (Objective::Projection, Some(x)) if x.len() == self.coeff_len() => x.to_vec(),
-            (Objective::Projection, x) => {
+        let sample = match (self.objective, target) {
+            (Objective::Smoothness { .. }, _) => None,
+            (_, Some(x)) if x.len() == self.coeff_len() => Some(x),
+            (_, x) => {
                 return Err(EngineError::BadLength { expected: self.coeff_len(), got: x.map_or(0, <[f64]>::len) });
             }
-            (Objective::Smoothness { .. }, _) => Vec::new(),
         };
-        let cold = match self.objective {
-            Objective::Projection => target.clone(),
-            Objective::Smoothness { .. } => self.smooth_start(problem, &b),
+        // The cost's linear term: `C xi` per robot and axis (`xi` itself
+        // for the plain projection).
+        let target = match (self.objective, sample) {
+            (Objective::SmoothProjection { .. }, Some(x)) => {
+                let mut linear = vec![0.0; x.len()];
+                gemm(&mut linear, x, &self.cost, x.len() / self.n_xi, self.n_xi, self.n_xi, false);
+                linear
+            }
+            (_, Some(x)) => x.to_vec(),
+            (_, None) => Vec::new(),
+        };
+        let cold = match sample {
+            Some(x) => x.to_vec(),
+            None => self.smooth_start(problem, &b),
         };
         let margin = self.settings.margin;
         let shrink = [t.robot.radius, t.robot.radius, t.robot.half_height].map(|r| margin * r);
@@ -815,6 +843,45 @@ mod tests {
         // Residual histories: one entry per iterate, the last not updated.
         assert_eq!(outcome.history.len(), outcome.iterations + 1);
         assert!(outcome.history.last().unwrap().fixed_point.is_nan());
+    }
+
+    /// A 16-robot instance and its smoothest straight curves, which collide.
+    fn colliding_sample() -> (Team, Problem, Vec<f64>) {
+        let team = Team::default_for(Dim::Two, 16);
+        let problem = RandomScenario::new(team.clone()).generate(5).unwrap();
+        let sample = SmoothReference::new(&team).unwrap().coefficients(&problem);
+        (team, problem, sample)
+    }
+
+    #[test]
+    fn the_smooth_projection_with_weight_zero_is_the_projection() {
+        let (team, problem, sample) = colliding_sample();
+        let run = |objective| {
+            let sf = Engine::new(&team, 0, objective, AmSettings::safety_filter()).unwrap();
+            sf.filter(&problem, &sample, None).unwrap()
+        };
+        let plain = run(Objective::Projection);
+        let weighted = run(Objective::SmoothProjection { weight: 0.0 });
+        assert!(plain.iterations > 0);
+        assert_eq!(plain.state, weighted.state);
+    }
+
+    #[test]
+    fn the_smooth_projection_repairs_with_smoother_detours() {
+        let (team, problem, sample) = colliding_sample();
+        let repair = |objective| {
+            let sf = Engine::new(&team, 0, objective, AmSettings::safety_filter()).unwrap();
+            let outcome = sf.filter(&problem, &sample, None).unwrap();
+            assert_eq!(outcome.stop, Stop::Verified, "{objective:?}");
+            let correction: Vec<f64> = outcome.state.xi.iter().zip(&sample).map(|(a, b)| a - b).collect();
+            let plan = JointPlan::new(&team, outcome.state.xi);
+            assert!(Metrics::measure(&problem, &plan).success(team.separation().0));
+            (JointPlan::new(&team, correction).smoothness(team.samples), plan.smoothness(team.samples))
+        };
+        let (plain_correction, plain) = repair(Objective::Projection);
+        let (smooth_correction, smooth) = repair(Objective::SmoothProjection { weight: 3.0 });
+        assert!(smooth_correction < 0.5 * plain_correction, "{smooth_correction} vs {plain_correction}");
+        assert!(smooth < plain, "{smooth} vs {plain}");
     }
 
     #[test]
