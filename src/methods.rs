@@ -89,11 +89,7 @@ pub enum SolverArg {
 impl LearnedArgs {
     /// The safety filter's objective.
     pub fn sf_objective(&self) -> Objective {
-        if self.sf_smoothing > 0.0 {
-            Objective::SmoothProjection { weight: self.sf_smoothing }
-        } else {
-            Objective::Projection
-        }
+        Objective::filter(self.sf_smoothing)
     }
 
     /// The pipeline settings for `method`.

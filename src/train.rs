@@ -142,6 +142,11 @@ struct InitArgs {
     /// Flow sampling steps of the training samples.
     #[arg(long, default_value_t = 4)]
     flow_steps: usize,
+    /// Smoothing weight of the unrolled SF's metric (0: the plain
+    /// projection, as the shipped initialiser; 3, the pipeline's metric,
+    /// measured worse: docs/LEARNED.md).
+    #[arg(long, default_value_t = 0.0)]
+    sf_smoothing: f64,
 }
 
 /// Runs `flowopt train`.
@@ -171,6 +176,7 @@ pub fn run(args: TrainArgs) -> Result<()> {
             let init = InitConfig {
                 width: a.width,
                 unroll: a.unroll,
+                sf_smoothing: a.sf_smoothing,
                 ..InitConfig::small(dim, flowopt_planner::problem::Team::DEFAULT_DEGREE + 1)
             };
             let samples = InitData { per_bucket: a.per_bucket, flow_steps: a.flow_steps };

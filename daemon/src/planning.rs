@@ -190,12 +190,7 @@ impl TeamPlanner {
                     use_init: model.has_init(),
                     ..PipelineSettings::default()
                 };
-                let objective = if l.sf_smoothing > 0.0 {
-                    Objective::SmoothProjection { weight: l.sf_smoothing }
-                } else {
-                    Objective::Projection
-                };
-                let filters = engines(objective, filter_settings)?;
+                let filters = engines(Objective::filter(l.sf_smoothing), filter_settings)?;
                 Some(Learned { model, settings, filters })
             }
             None => None,

@@ -30,12 +30,18 @@ pub struct InitConfig {
     pub lambda_scale: f64,
     /// Unrolled SF iterations it was trained through.
     pub unroll: usize,
+    /// Smoothing weight of the SF metric it was trained through
+    /// (`Objective::filter`; default and weights from before the field: 0,
+    /// the plain projection, which measured better under the pipeline's
+    /// weighted SF than training through that SF, docs/LEARNED.md).
+    #[serde(default)]
+    pub sf_smoothing: f64,
 }
 
 impl InitConfig {
     /// The default size.
     pub fn small(dim: usize, n_xi: usize) -> Self {
-        Self { dim, n_xi, width: 64, heads: 4, hidden: 128, lambda_scale: 1.0, unroll: 15 }
+        Self { dim, n_xi, width: 64, heads: 4, hidden: 128, lambda_scale: 1.0, unroll: 15, sf_smoothing: 0.0 }
     }
 }
 
@@ -108,4 +114,16 @@ pub fn tokens_to_coefficients(tokens: &Tensor, dim: usize, n_xi: usize) -> Resul
     let t = tokens.reshape((b, n, dim, interior))?.transpose(1, 2)?;
     let zeros = Tensor::zeros((b, dim, n, edge), tokens.dtype(), tokens.device())?;
     Tensor::cat(&[&zeros, &t, &zeros], 3)?.contiguous()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn weights_from_before_the_metric_field_were_trained_through_the_plain_projection() {
+        let old = r#"{"dim":2,"n_xi":11,"width":64,"heads":4,"hidden":128,"lambda_scale":1.0,"unroll":15}"#;
+        let config: InitConfig = serde_json::from_str(old).expect("an old configuration parses");
+        assert_eq!(config, InitConfig::small(2, 11));
+    }
 }

@@ -454,7 +454,7 @@ pub fn train_init(
         let ids: Vec<u32> = (0..train as u32).chain(s.train as u32..(s.train + held) as u32).collect();
         let (robots, obstacles, _) = s.batch(&ids)?;
         let team = flowopt_planner::problem::Team::default_for(config.dimension()?, n);
-        let engine = Engine::new(&team, m, Objective::Projection, AmSettings::safety_filter())?;
+        let engine = Engine::new(&team, m, Objective::filter(init.sf_smoothing), AmSettings::safety_filter())?;
         let sf = UnrolledSf::new(&engine, DType::F32)?;
         let coding = Coding::new(&team)?;
         let encoded = flow_net.encode(&robots, &obstacles)?;
@@ -491,10 +491,10 @@ pub fn train_init(
             let chosen: Vec<&Prepared> = ids.iter().map(|&i| &b.prepared[i as usize]).collect();
             let batch = b.sf.batch(&b.engine, &chosen)?;
             let delta = tokens_to_coefficients(&stats.token.scale(&out.delta)?, init.dim, init.n_xi)?;
-            let xi0 = (&batch.target + delta)?;
+            let xi0 = (&batch.sample + delta)?;
             let (xi_l, _, residuals) = b.sf.unroll(&xi0, &out.lambda, &batch, init.unroll)?;
             let fixed_point = residuals.sum(0)?.mean_all()?;
-            let distance = (xi_l - &batch.target)?.sqr()?.flatten_from(1)?.sum(1)?.mean_all()?;
+            let distance = (xi_l - &batch.sample)?.sqr()?.flatten_from(1)?.sum(1)?.mean_all()?;
             Ok((fixed_point + distance)?)
         },
         progress,

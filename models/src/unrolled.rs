@@ -39,8 +39,10 @@ pub struct UnrolledSf {
 pub struct SfBatch {
     /// `[B, D, n, n_xi]`.
     pub beta: Tensor,
-    /// The samples, `[B, D, n, n_xi]`.
+    /// The cost's linear term (see `Prepared::target`), `[B, D, n, n_xi]`.
     pub target: Tensor,
+    /// The samples the SF repairs, `[B, D, n, n_xi]`.
+    pub sample: Tensor,
     /// Obstacle centres, `[B, D, m, K]`, and `1 / sep^2`, `[B, D, 1, m, 1]`.
     pub obstacles: Option<(Tensor, Tensor)>,
     /// Box per axis, `[1, D, 1, 1]` each.
@@ -126,6 +128,7 @@ impl UnrolledSf {
         Ok(SfBatch {
             beta: stack(&|p| p.beta(0))?,
             target: stack(&|p| p.target())?,
+            sample: stack(&|p| p.cold())?,
             obstacles,
             lo: corner(lo)?,
             hi: corner(hi)?,

@@ -63,7 +63,9 @@ fn tiny_networks_learn_and_the_pipeline_plans_with_them() {
     );
     assert!(flow_path.with_extension("json").exists(), "a model card is written");
 
-    let init_cfg = InitConfig { width: 16, heads: 2, hidden: 16, unroll: 4, ..InitConfig::small(2, 11) };
+    // Through the smoothness-weighted SF: its linear term is not the sample.
+    let init_cfg =
+        InitConfig { width: 16, heads: 2, hidden: 16, unroll: 4, sf_smoothing: 3.0, ..InitConfig::small(2, 11) };
     let init_path = dir.join("init.safetensors");
     let samples = InitData { per_bucket: 20, flow_steps: 2 };
     let report = train_init(

@@ -95,6 +95,12 @@ impl Objective {
     pub fn smoothness() -> Self {
         Objective::Smoothness { weight: 1.0 }
     }
+
+    /// The safety filter's objective for a smoothing weight: the plain
+    /// projection at 0, [`Objective::SmoothProjection`] above it.
+    pub fn filter(smoothing: f64) -> Self {
+        if smoothing > 0.0 { Objective::SmoothProjection { weight: smoothing } } else { Objective::Projection }
+    }
 }
 
 /// Why the engine could not be built or run.
@@ -251,6 +257,12 @@ impl Prepared {
     /// [`Objective::SmoothProjection`] (empty for the optimiser), `[axis][robot][coef]`.
     pub fn target(&self) -> &[f64] {
         &self.target
+    }
+
+    /// The cold-start coefficients, `[axis][robot][coef]`: the safety
+    /// filter's sample.
+    pub fn cold(&self) -> &[f64] {
+        &self.cold
     }
 
     /// The inflated sizes and shrunk box the iterations project onto.
