@@ -12,7 +12,7 @@ use serde::Serialize;
 use crate::instances::InstanceArgs;
 use crate::methods::{LearnedArgs, Method, Planner, Record, plan_distance};
 use crate::solve::EngineArgs;
-use crate::stats::{mean, quantile};
+use crate::stats::{IterationStats, mean, quantile};
 
 /// Benchmark a planning method on seeded random instances.
 #[derive(Debug, Args)]
@@ -137,6 +137,8 @@ pub fn run(args: BenchArgs) -> Result<()> {
     let iterations: Vec<f64> = records.iter().map(|r| r.iterations as f64).collect();
     let successes: Vec<&Record> = records.iter().filter(|r| r.success).collect();
     let team = args.instance.team();
+    let to_0_01 = IterationStats::of(records.iter().map(|r| r.iterations_to_0_01));
+    let to_0_001 = IterationStats::of(records.iter().map(|r| r.iterations_to_0_001));
     let summary = Summary {
         method: args.method,
         robots: team.robots,
@@ -151,10 +153,10 @@ pub fn run(args: BenchArgs) -> Result<()> {
         mean_arc_length: mean(&successes.iter().map(|r| r.arc_length).collect::<Vec<_>>()),
         mean_iterations: mean(&iterations),
         median_iterations: quantile(&iterations, 0.5),
-        mean_iterations_to_0_01: mean(&reached(&records, |r| r.iterations_to_0_01)),
-        reached_0_01: reached(&records, |r| r.iterations_to_0_01).len() as f64 / records.len().max(1) as f64,
-        mean_iterations_to_0_001: mean(&reached(&records, |r| r.iterations_to_0_001)),
-        reached_0_001: reached(&records, |r| r.iterations_to_0_001).len() as f64 / records.len().max(1) as f64,
+        mean_iterations_to_0_01: to_0_01.mean,
+        reached_0_01: to_0_01.reached,
+        mean_iterations_to_0_001: to_0_001.mean,
+        reached_0_001: to_0_001.reached,
         median_stages_ms: stage_medians(&records),
         mean_pairwise_distance_m: (!distances.is_empty()).then(|| mean(&distances)),
     };
@@ -192,11 +194,6 @@ pub fn run(args: BenchArgs) -> Result<()> {
         println!("arc length       mean {:.4} m (successes)", summary.mean_arc_length);
     }
     Ok(())
-}
-
-/// The iteration counts of the instances whose study reached a level.
-fn reached(records: &[Record], f: impl Fn(&Record) -> Option<usize>) -> Vec<f64> {
-    records.iter().filter_map(|r| f(r).map(|i| i as f64)).collect()
 }
 
 /// Median of every pipeline stage time, when the records have them.

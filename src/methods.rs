@@ -73,7 +73,7 @@ pub struct LearnedArgs {
     pub temperature: f64,
     /// Weight of the correction's smoothness in the safety filter's metric
     /// (`Objective::SmoothProjection`; 0 is the paper's plain projection).
-    #[arg(long, default_value_t = flowopt_models::pipeline::DEFAULT_SF_SMOOTHING)]
+    #[arg(long, default_value_t = flowopt_models::pipeline::DEFAULT_SF_SMOOTHING, value_parser = smoothing_weight)]
     pub sf_smoothing: f64,
 }
 
@@ -84,6 +84,15 @@ pub enum SolverArg {
     Euler,
     /// Explicit midpoint (RK2).
     Midpoint,
+}
+
+/// Parses a safety-filter smoothing weight: a finite number, 0 or more.
+pub fn smoothing_weight(text: &str) -> Result<f64, String> {
+    match text.parse::<f64>() {
+        Ok(w) if w.is_finite() && w >= 0.0 => Ok(w),
+        Ok(_) => Err(format!("{text} is not a weight: give a finite number, 0 or more")),
+        Err(e) => Err(format!("{text}: {e}")),
+    }
 }
 
 impl LearnedArgs {

@@ -34,16 +34,17 @@ pub const DEFAULT_SF_SMOOTHING: f64 = 3.0;
 /// How the pipeline runs.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct PipelineSettings {
-    /// Candidates sampled per problem.
+    /// Candidates sampled per problem (at least 1 is sampled).
     pub candidates: usize,
     /// Flow integration steps.
     pub steps: usize,
     /// Flow integrator.
     pub solver: Solver,
-    /// Candidates refined by the safety filter.
+    /// Candidates refined by the safety filter (clamped to 1..=candidates).
     pub top_k: usize,
-    /// Start the SF from the initialiser (`false`: from the samples with a
-    /// zero multiplier, the `flow-no-init` ablation).
+    /// Start the SF from the initialiser (`false`, or no initialiser
+    /// loaded: from the samples with a zero multiplier, the `flow-no-init`
+    /// ablation).
     pub use_init: bool,
     /// Threads refining candidates in parallel.
     pub threads: usize,
@@ -100,7 +101,8 @@ pub struct Refined {
     pub rank: usize,
     /// Primal residual of the sample.
     pub sample_primal: f64,
-    /// The SF problem (target: the sample).
+    /// The SF problem (`cold()`: the sample; `target()`: the cost's
+    /// linear term).
     pub prepared: Prepared,
     /// Where the SF started.
     pub start: AmState,
@@ -263,6 +265,18 @@ impl FlowOpt {
                 || q.seen.obstacles.len() != first.seen.obstacles.len()
             {
                 return Err(ModelError::Config("a batch needs one team shape and one count of seen obstacles".into()));
+            }
+            if q.enforced.obstacles.len() != sf.obstacles() {
+                return Err(ModelError::Config(format!(
+                    "the safety filter is built for {} obstacles, a query enforces {}",
+                    sf.obstacles(),
+                    q.enforced.obstacles.len()
+                )));
+            }
+            if q.seen.starts != q.enforced.starts || q.seen.goals != q.enforced.goals {
+                return Err(ModelError::Config(
+                    "a query's seen and enforced problems differ in starts or goals".into(),
+                ));
             }
         }
         let started = Instant::now();

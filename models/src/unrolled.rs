@@ -233,6 +233,11 @@ mod tests {
         let flat = |f: &dyn Fn(&AmState) -> &Vec<f64>| states.iter().flat_map(|s| f(s).clone()).collect::<Vec<f64>>();
         let xi = Tensor::from_vec(flat(&|s| &s.xi), shape, &Device::Cpu).unwrap();
         let lambda = Tensor::from_vec(flat(&|s| &s.lambda), shape, &Device::Cpu).unwrap();
+        // The batch keeps the samples apart from the cost's linear term,
+        // which is the sample itself only for the plain projection.
+        let values = |t: &Tensor| t.flatten_all().unwrap().to_vec1::<f64>().unwrap();
+        assert_eq!(values(&batch.sample), flat(&|s| &s.xi));
+        assert_eq!(values(&batch.target) == values(&batch.sample), objective == Objective::Projection);
         let (xi_l, lambda_l, residuals) = sf.unroll(&xi, &lambda, &batch, 5).unwrap();
         assert_eq!(residuals.dims(), &[5, 2]);
         let mut stepped = Vec::new();

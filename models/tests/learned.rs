@@ -90,7 +90,7 @@ fn tiny_networks_learn_and_the_pipeline_plans_with_them() {
     let planner = FlowOpt::load(&flow_path, Some(&init_path)).unwrap();
     let team = flowopt_planner::problem::Team::default_for(flowopt_planner::problem::Dim::Two, 4);
     let problem = flowopt_planner::scenario::RandomScenario::new(team.clone()).with_obstacles(1).generate(3).unwrap();
-    let sf = Engine::new(&team, 1, Objective::Projection, AmSettings::safety_filter()).unwrap();
+    let sf = Engine::new(&team, 1, Objective::filter(init_cfg.sf_smoothing), AmSettings::safety_filter()).unwrap();
     let settings = PipelineSettings { candidates: 6, steps: 2, top_k: 3, ..PipelineSettings::default() };
     let out = planner.plan(&problem, &sf, &settings, 1, None).unwrap();
     assert_eq!((out.samples.len(), out.refined.len()), (6, 3));

@@ -5,28 +5,10 @@
 use std::hint::black_box;
 
 use criterion::{BatchSize, Criterion, criterion_group, criterion_main};
-use flowopt_planner::am::{AmSettings, Engine, Objective};
+use flowopt_planner::am::WorkingPoint;
 use flowopt_planner::basis::{BOUNDARY_ROWS, Basis};
 use flowopt_planner::kkt::{DenseTeamKkt, TeamKkt};
-use flowopt_planner::problem::{Dim, Team};
-use flowopt_planner::scenario::RandomScenario;
-use rand::{Rng, SeedableRng};
-use rand_chacha::ChaCha8Rng;
-
-/// A feasible plan for a seeded 16-robot 2D instance, perturbed by noise of
-/// 10% of the separation on every coefficient: the SF's working point.
-fn sf_setup(robots: usize, dim: Dim) -> (Engine, flowopt_planner::am::Prepared, Vec<f64>) {
-    let team = Team::default_for(dim, robots);
-    let problem = RandomScenario::new(team.clone()).generate(11).expect("instance");
-    let optimiser = Engine::new(&team, 0, Objective::smoothness(), AmSettings::optimiser()).expect("engine");
-    let solution = optimiser.solve(&problem).expect("solve").state.xi;
-    let mut rng = ChaCha8Rng::seed_from_u64(5);
-    let noise = 0.1 * team.separation().0;
-    let sample: Vec<f64> = solution.iter().map(|x| x + noise * rng.random_range(-1.0..=1.0)).collect();
-    let sf = Engine::new(&team, 0, Objective::Projection, AmSettings::safety_filter()).expect("sf");
-    let prepared = sf.prepare(&problem, Some(&sample)).expect("prepare");
-    (sf, prepared, sample)
-}
+use flowopt_planner::problem::Dim;
 
 fn iterations(c: &mut Criterion) {
     for (robots, dim, name) in [
@@ -34,15 +16,12 @@ fn iterations(c: &mut Criterion) {
         (32, Dim::Two, "sf_iteration/32_robots_2d"),
         (16, Dim::Three, "sf_iteration/16_robots_3d"),
     ] {
-        let (sf, prepared, _) = sf_setup(robots, dim);
-        let mut stepper = sf.stepper();
-        let start = sf.cold_start(&prepared);
-        // Every timed iteration starts from the perturbed sample itself, the
-        // iterate with the most violations, not from a converging state.
+        let point = WorkingPoint::new(robots, dim).expect("working point");
+        let mut stepper = point.filter.stepper();
         c.bench_function(name, |b| {
             b.iter_batched_ref(
-                || start.clone(),
-                |state| black_box(stepper.step(&prepared, state, 0)),
+                || point.start.clone(),
+                |state| black_box(stepper.step(&point.prepared, state, 0)),
                 BatchSize::SmallInput,
             )
         });

@@ -460,6 +460,15 @@ mod tests {
     }
 
     #[test]
+    fn one_more_obstacle_keeps_the_others_of_a_seed() {
+        let team = Team::default_for(Dim::Two, 16);
+        let eight = RandomScenario::new(team.clone()).with_obstacles(8).generate(4).unwrap();
+        let mut nine = RandomScenario::new(team).with_obstacles(9).generate(4).unwrap();
+        assert!(nine.obstacles.pop().is_some());
+        assert_eq!(eight, nine);
+    }
+
+    #[test]
     fn an_overfull_team_is_reported_as_too_dense() {
         let team = Team::default_for(Dim::Two, 200);
         assert!(matches!(RandomScenario::new(team).generate(1), Err(ScenarioError::TooDense { what: "start", .. })));

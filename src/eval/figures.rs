@@ -173,11 +173,13 @@ where
 {
     for c in curves {
         let col = colour(c.colour);
+        // A point without a value (no successful instance) is left out.
+        let points: Vec<(f64, f64)> = c.points.iter().copied().filter(|p| p.1.is_finite()).collect();
         chart
-            .draw_series(LineSeries::new(c.points.clone(), col.stroke_width(2)))?
+            .draw_series(LineSeries::new(points.clone(), col.stroke_width(2)))?
             .label(c.label.as_str())
             .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], col.stroke_width(2)));
-        chart.draw_series(c.points.iter().map(|&p| Circle::new(p, 3, col.filled())))?;
+        chart.draw_series(points.into_iter().map(|p| Circle::new(p, 3, col.filled())))?;
     }
     chart
         .configure_series_labels()

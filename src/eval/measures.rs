@@ -1,6 +1,6 @@
 //! The measures the evaluation report computes from planning records:
-//! success within a time budget, iteration statistics, residual decay bands
-//! and pairwise distances over time. Pure functions, tested on hand-made
+//! success within a time budget, residual decay bands and pairwise
+//! distances over time. Pure functions, tested on hand-made
 //! inputs with known answers.
 
 use flowopt_planner::am::Residuals;
@@ -18,35 +18,6 @@ pub fn success_within(records: &[Record], budget_ms: f64) -> f64 {
         return f64::NAN;
     }
     records.iter().filter(|r| r.success && r.time_ms <= budget_ms).count() as f64 / records.len() as f64
-}
-
-/// Mean, smallest and largest iteration count over the instances that
-/// reached a residual level, and the fraction that did.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct IterationStats {
-    /// Mean over the instances that reached the level (NaN if none did).
-    pub mean: f64,
-    /// Fewest iterations (NaN if none reached it).
-    pub min: f64,
-    /// Most iterations (NaN if none reached it).
-    pub max: f64,
-    /// Fraction of all instances that reached it.
-    pub reached: f64,
-}
-
-impl IterationStats {
-    /// Statistics of per-instance counts (`None`: the level was not reached).
-    pub fn of(counts: impl IntoIterator<Item = Option<usize>>) -> Self {
-        let counts: Vec<Option<usize>> = counts.into_iter().collect();
-        let reached: Vec<f64> = counts.iter().flatten().map(|&c| c as f64).collect();
-        let extreme = |f: fn(f64, f64) -> f64| reached.iter().copied().reduce(f).unwrap_or(f64::NAN);
-        Self {
-            mean: mean(&reached),
-            min: extreme(f64::min),
-            max: extreme(f64::max),
-            reached: if counts.is_empty() { f64::NAN } else { reached.len() as f64 / counts.len() as f64 },
-        }
-    }
 }
 
 /// One residual series over iterations across many instances: the mean and
@@ -173,15 +144,6 @@ mod tests {
         assert_eq!(success_within(&records, 10.0), 0.5);
         assert_eq!(success_within(&records, 1e9), 0.75);
         assert!(success_within(&[], 1.0).is_nan());
-    }
-
-    #[test]
-    fn iteration_stats_skip_instances_that_never_reached_the_level() {
-        let s = IterationStats::of([Some(10), None, Some(30), Some(20)]);
-        assert_eq!((s.mean, s.min, s.max, s.reached), (20.0, 10.0, 30.0, 0.75));
-        let none = IterationStats::of([None, None]);
-        assert!(none.mean.is_nan() && none.min.is_nan() && none.max.is_nan());
-        assert_eq!(none.reached, 0.0);
     }
 
     fn residuals(primal: &[f64], fixed_point: &[f64]) -> Vec<Residuals> {

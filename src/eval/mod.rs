@@ -17,15 +17,15 @@ use std::time::Instant;
 
 use anyhow::{Context, Result};
 use clap::Args;
-use flowopt_planner::am::{AmSettings, Engine, Objective};
+use flowopt_planner::am::{AmSettings, WorkingPoint};
 use flowopt_planner::problem::{Dim, Problem, Team};
 use flowopt_planner::scenario::{RandomScenario, antipodal};
 use indicatif::{ProgressBar, ProgressStyle};
 
 use crate::methods::{LearnedArgs, Method, Overrides, Planner, Record};
-use crate::stats::{mean, quantile};
+use crate::stats::{IterationStats, mean, quantile};
 use figures::{BandCurve, BandPanel, Curve, PlanPanel};
-use measures::{Band, IterationStats, PairwiseProfile, Series, success_within};
+use measures::{Band, PairwiseProfile, Series, success_within};
 use report::{Table, ms, num, pct};
 
 /// Write the evaluation report: tables and figures comparing the methods.
@@ -36,7 +36,7 @@ pub struct EvalArgs {
     #[arg(long)]
     quick: bool,
     /// Instances per row (overrides the count `--quick` chooses).
-    #[arg(long)]
+    #[arg(long, value_parser = clap::value_parser!(u64).range(1..))]
     problems: Option<u64>,
     /// First instance seed; instance i uses seed + i.
     #[arg(long, default_value_t = 0)]
@@ -44,7 +44,8 @@ pub struct EvalArgs {
     /// The report to write.
     #[arg(long, default_value = "docs/RESULTS.md")]
     out: PathBuf,
-    /// Directory of the figures (linked from the report relative to it).
+    /// Directory of the figures (linked relative to the report when under
+    /// its directory, else by absolute path).
     #[arg(long, default_value = "docs/figures")]
     figures: PathBuf,
     #[command(flatten)]
@@ -68,34 +69,31 @@ const OBSTACLES: usize = 8;
 /// Time budgets of the success-versus-time study (ms).
 const BUDGETS_MS: [f64; 12] = [0.5, 1.0, 2.0, 5.0, 10.0, 20.0, 35.0, 50.0, 80.0, 120.0, 200.0, 500.0];
 
+/// docs/BENCHMARKS.md's criterion time of one 16-robot 2D safety-filter
+/// iteration (µs), the reference of the report's machine-speed line.
+const BENCHMARKS_SF_ITERATION_US: f64 = 5.57;
+
+/// Instants of the pairwise-distance profiles (table 6).
+const PAIRWISE_INSTANTS: usize = 101;
+
 /// Iterations shown in the residual decay figures.
 const DECAY_ITERATIONS: usize = 600;
 
-/// How the instances of a row are derived from the seeded generator.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-enum Variant {
-    /// As generated.
-    Plain,
-    /// The last obstacle is hidden from the networks (the SF enforces it).
-    HideLast,
-    /// The last obstacle is removed.
-    DropLast,
-}
-
-/// One row of instances: a team, a generated obstacle count, a variant and
-/// a method.
+/// One row of instances: a team, a generated obstacle count, how many of
+/// them (the last ones) are hidden from the networks, and a method.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 struct Row {
     dim: Dim,
     robots: usize,
     obstacles: usize,
-    variant: Variant,
+    /// Obstacles the safety filter enforces but the networks do not see.
+    hidden: usize,
     method: Method,
 }
 
 impl Row {
     fn new(dim: Dim, robots: usize, obstacles: usize, method: Method) -> Self {
-        Self { dim, robots, obstacles, variant: Variant::Plain, method }
+        Self { dim, robots, obstacles, hidden: 0, method }
     }
 
     fn team(&self) -> Team {
@@ -104,18 +102,10 @@ impl Row {
 
     /// Instance `seed` of this row.
     fn instance(&self, seed: u64) -> Result<Problem> {
-        let mut problem = RandomScenario::new(self.team())
+        RandomScenario::new(self.team())
             .with_obstacles(self.obstacles)
             .generate(seed)
-            .with_context(|| format!("generating the instance with seed {seed}"))?;
-        if self.variant == Variant::DropLast {
-            problem.obstacles.pop();
-        }
-        Ok(problem)
-    }
-
-    fn hidden(&self) -> usize {
-        usize::from(self.variant == Variant::HideLast)
+            .with_context(|| format!("generating the instance with seed {seed}"))
     }
 }
 
@@ -147,19 +137,19 @@ impl Runs {
     fn get(&mut self, row: Row) -> Result<&[Record]> {
         if !self.records.contains_key(&row) {
             self.progress.set_message(format!(
-                "{:?} {}D {} robots {} obstacles {:?}",
+                "{:?} {}D {} robots {} obstacles ({} hidden)",
                 row.method,
                 row.dim.axes(),
                 row.robots,
                 row.obstacles,
-                row.variant
+                row.hidden
             ));
             self.progress.inc_length(self.problems);
             let mut records = Vec::with_capacity(self.problems as usize);
             for i in 0..self.problems {
                 let seed = self.seed + i;
                 let problem = row.instance(seed)?;
-                records.push(self.planner.run_hiding(row.method, &problem, row.hidden(), seed)?);
+                records.push(self.planner.run_hiding(row.method, &problem, row.hidden, seed)?);
                 self.progress.inc(1);
             }
             self.records.insert(row, records);
@@ -185,26 +175,26 @@ pub fn run(args: EvalArgs) -> Result<()> {
     };
     let command = if args.quick { "flowopt eval --quick".to_string() } else { "flowopt eval".to_string() };
     let mut doc = String::new();
-    let figures = relative_figures(&args.out, &args.figures);
+    let figures = relative_figures(&args.out, &args.figures)?;
 
     doc.push_str(&method_comparison(&mut runs, &command)?);
     doc.push_str(&iterations(&mut runs, &command)?);
     doc.push_str(&success_versus_time(&mut runs, &command, &args.figures, &figures)?);
-    doc.push_str(&throughput(&args, &command, args.quick)?);
+    doc.push_str(&throughput(&args, &command)?);
     doc.push_str(&robustness(&mut runs, &command, &args.figures, &figures)?);
     doc.push_str(&clearance(&mut runs, &command, &args.figures, &figures)?);
     doc.push_str(&residual_figure(&mut runs, &args.figures, &figures)?);
     doc.push_str(&trajectory_figures(&mut runs, &args, &figures)?);
     runs.progress.finish_and_clear();
 
-    let header = header(
-        &command,
+    let header = header(&HeaderFacts {
+        command: &command,
         problems,
-        args.seed,
-        started.elapsed().as_secs_f64(),
-        calibration_us()?,
-        args.learned.sf_smoothing,
-    );
+        seed: args.seed,
+        seconds: started.elapsed().as_secs_f64(),
+        calibration_us: calibration_us()?,
+        learned: &args.learned,
+    });
     let text = header + &doc;
     std::fs::write(&args.out, text).with_context(|| format!("writing {}", args.out.display()))?;
     println!(
@@ -216,57 +206,102 @@ pub fn run(args: EvalArgs) -> Result<()> {
     Ok(())
 }
 
-/// The figures directory as the report links it (relative to the report).
-fn relative_figures(report: &Path, figures: &Path) -> String {
+/// The figures directory as the report links it: relative to the report
+/// when under its directory, else absolute.
+fn relative_figures(report: &Path, figures: &Path) -> Result<String> {
     let base = report.parent().unwrap_or(Path::new(""));
-    figures.strip_prefix(base).unwrap_or(figures).display().to_string()
+    match figures.strip_prefix(base) {
+        Ok(relative) => Ok(relative.display().to_string()),
+        Err(_) => Ok(std::path::absolute(figures)
+            .with_context(|| format!("resolving {}", figures.display()))?
+            .display()
+            .to_string()),
+    }
 }
 
-/// Median time (µs) of one safety-filter iteration on a fixed 16-robot 2D
-/// instance (the criterion benchmark's working point), measured in this
-/// run so that runs on machines of different speed can be compared.
+/// Median time (µs) of one safety-filter iteration at the criterion
+/// benchmark's working point ([`WorkingPoint`], 16 robots, 2D), measured in
+/// this run so that runs on machines of different speed can be compared.
 fn calibration_us() -> Result<f64> {
-    let team = Team::default_for(Dim::Two, 16);
-    let problem = RandomScenario::new(team.clone()).generate(11)?;
-    let sample = flowopt_planner::reference::SmoothReference::new(&team)?.coefficients(&problem);
-    let sf = Engine::new(&team, 0, Objective::Projection, AmSettings::safety_filter())?;
-    let prepared = sf.prepare(&problem, Some(&sample))?;
-    let mut stepper = sf.stepper();
-    let start = sf.cold_start(&prepared);
+    const ITERATIONS: usize = 500;
+    let point = WorkingPoint::new(16, Dim::Two)?;
+    let mut stepper = point.filter.stepper();
     let mut batches = Vec::new();
     for _ in 0..7 {
+        // Every timed iteration starts from the working point's iterate.
+        let mut states = vec![point.start.clone(); ITERATIONS];
         let began = Instant::now();
-        for _ in 0..500 {
-            let mut state = start.clone();
-            std::hint::black_box(stepper.step(&prepared, &mut state, 0));
+        for state in &mut states {
+            std::hint::black_box(stepper.step(&point.prepared, state, 0));
         }
-        batches.push(began.elapsed().as_secs_f64() * 1e6 / 500.0);
+        batches.push(began.elapsed().as_secs_f64() * 1e6 / ITERATIONS as f64);
     }
     Ok(quantile(&batches, 0.5))
 }
 
-fn header(command: &str, problems: u64, seed: u64, seconds: f64, calibration_us: f64, sf_smoothing: f64) -> String {
+/// Cores and vector extension of this machine, as the report states them.
+fn machine() -> String {
+    let cores = std::thread::available_parallelism().map_or(1, std::num::NonZeroUsize::get);
+    #[cfg(target_arch = "x86_64")]
+    let avx2 = std::arch::is_x86_feature_detected!("avx2");
+    #[cfg(not(target_arch = "x86_64"))]
+    let avx2 = false;
+    format!("{cores} cores{}", if avx2 { " (AVX2)" } else { "" })
+}
+
+/// What the report says of its run and its methods.
+struct HeaderFacts<'a> {
+    command: &'a str,
+    problems: u64,
+    seed: u64,
+    seconds: f64,
+    calibration_us: f64,
+    learned: &'a LearnedArgs,
+}
+
+fn header(f: &HeaderFacts) -> String {
+    let optimiser = AmSettings::optimiser();
+    let pipeline = f.learned.settings(Method::Flowopt);
+    let metric = if f.learned.sf_smoothing > 0.0 {
+        format!(
+            "in the smoothness-weighted metric with weight {} (`Objective::SmoothProjection`, docs/LEARNED.md)",
+            f.learned.sf_smoothing
+        )
+    } else {
+        "as the plain projection".to_string()
+    };
     format!(
         "# Results\n\n\
-         Written by `{command}` (release build) on the development machine: 2 cores (AVX2), 24 GiB, no GPU. \
-         This run took {:.1} min. Machine speed in this run: one 16-robot 2D safety-filter iteration took \
-         {calibration_us:.1} µs (the working point of `cargo bench -p flowopt-planner --bench engine`; \
-         docs/BENCHMARKS.md has 5.57 µs there), so times here compare with other runs in that ratio. Every table and figure below comes from that one run: the same \
-         seeded test instances (seeds {seed}..{}, {problems} per row; training data uses seeds from \
-         10^9) for every method, planned one at a time in one process, wall-clock times per instance.\n\n\
-         Methods: **baseline** is the from-scratch AM optimiser (smoothness cost, cold start, \
-         iteration cap 10,000); **flowopt** is the learned pipeline (16 flow candidates, 4 Euler steps, \
-         top 4 by primal residual, SF initialiser, safety filter on 2 threads in the smoothness-weighted \
-         metric with weight {sf_smoothing} (`Objective::SmoothProjection`, docs/LEARNED.md), the verified \
-         plan with the lowest smoothness); **flow-no-init** is the same with the safety filter started from the \
-         flow samples (the paper's ablation). The shipped weights (`models/weights/`) plan 2D teams; \
-         3D rows of the learned methods say so. Success is the dense verdict of \
-         `flowopt_planner::metrics` (every separation kept to 1% on 4K instants, box, boundary \
-         conditions). Smoothness is the mean over robots of the sum of squared accelerations over the \
-         K = 50 samples (m^2/s^4); min clearance is the smallest surface gap between two robots or a \
+         Written by `{}` (release build) on {}, no GPU. This run took {:.1} min. Machine speed in this run: \
+         one safety-filter iteration at the working point of `cargo bench -p flowopt-planner --bench engine` \
+         (16 robots, 2D) took {:.1} µs; docs/BENCHMARKS.md has {BENCHMARKS_SF_ITERATION_US} µs there, so \
+         times here compare with that page's in that ratio. Every table and figure below comes from that one \
+         run, on the same seeded test instances for every method (seeds {}..{}, {} per row; table 4 plans its \
+         own batches, seeds shown; training data uses seeds from 10^9), planned one at a time in one process, \
+         wall-clock times per instance.\n\n\
+         Methods: **baseline** is the from-scratch AM optimiser (smoothness cost, routed cold start, up to {} \
+         restarts sharing an iteration cap of {}); **flowopt** is the learned pipeline ({} flow candidates, {} \
+         {:?} steps, top {} by primal residual, SF initialiser, safety filter on {} threads {metric}, the \
+         verified plan with the lowest smoothness); **flow-no-init** is the same with the safety filter \
+         started from the flow samples (the paper's ablation). Rows a method cannot plan say why. Success is \
+         the dense verdict of `flowopt_planner::metrics` (every separation kept to 1% on 4K instants, box, \
+         boundary conditions). Smoothness is the mean over robots of the sum of squared accelerations over \
+         the K = 50 samples (m^2/s^4); min clearance is the smallest surface gap between two robots or a \
          robot and an obstacle (m).\n\n",
-        seconds / 60.0,
-        seed + problems,
+        f.command,
+        machine(),
+        f.seconds / 60.0,
+        f.calibration_us,
+        f.seed,
+        f.seed + f.problems,
+        f.problems,
+        optimiser.restarts,
+        optimiser.max_iterations,
+        pipeline.candidates,
+        pipeline.steps,
+        pipeline.solver,
+        pipeline.top_k,
+        pipeline.threads,
     )
 }
 
@@ -411,27 +446,29 @@ fn success_versus_time(runs: &mut Runs, command: &str, dir: &Path, link: &str) -
 }
 
 /// Table 4: 50 problems x 10 candidates sampled and refined together.
-fn throughput(args: &EvalArgs, command: &str, quick: bool) -> Result<String> {
+fn throughput(args: &EvalArgs, command: &str) -> Result<String> {
     const PROBLEMS: usize = 50;
     const CANDIDATES: usize = 10;
     const REFINED: usize = 5;
     let learned = LearnedArgs { candidates: CANDIDATES, top_k: REFINED, ..args.learned.clone() };
-    let mut planner = Planner::new(Overrides::default(), Some(learned));
+    let mut planner = Planner::new(Overrides::default(), Some(learned.clone()));
     let team = Team::default_for(Dim::Two, 16);
+    let sampling = format!("sampling {} candidates ms", PROBLEMS * CANDIDATES);
+    let refinements = format!("{} SF refinements ms", PROBLEMS * REFINED);
     let mut table = Table::new(&[
         "batch (seeds)",
         "total ms",
         "per problem ms",
-        "sampling 500 candidates ms",
+        &sampling,
         "rank ms",
         "init ms",
-        "250 SF refinements ms",
+        &refinements,
         "success",
     ]);
     if let Some(reason) = planner.learned_unavailable(&team) {
         table.unavailable(&["-".into()], &reason);
     } else {
-        let batches = if quick { 1 } else { 3 };
+        let batches = if args.quick { 1 } else { 3 };
         for b in 0..batches {
             let first = args.seed + (b * PROBLEMS) as u64;
             let problems = (0..PROBLEMS as u64)
@@ -455,10 +492,11 @@ fn throughput(args: &EvalArgs, command: &str, quick: bool) -> Result<String> {
     Ok(format!(
         "## 4. Batched throughput (16 robots, 2D)\n\n{}\nCommand: `{command}`. {PROBLEMS} distinct problems x \
          {CANDIDATES} flow candidates sampled in one batch, the best {REFINED} per problem initialised in one \
-         batch and refined by the safety filter on 2 threads ({} refinements). Success: the problem's returned \
-         plan verified. The paper (RTX 5090): 50 x 10 candidates sampled in under 60 ms, 250 SF refinements \
-         in under 300 ms.\n\n",
+         batch and refined by the safety filter on {} threads ({} refinements). Success: the problem's \
+         returned plan verified. The paper (RTX 5090): 50 x 10 candidates sampled in under 60 ms, 250 SF \
+         refinements in under 300 ms.\n\n",
         table.render(),
+        learned.settings(Method::Flowopt).threads,
         PROBLEMS * REFINED
     ))
 }
@@ -473,19 +511,22 @@ fn robustness(runs: &mut Runs, command: &str, dir: &Path, link: &str) -> Result<
         "to 0.01: mean (reached)",
         "to 0.001: mean (reached)",
     ]);
+    // (obstacles, hidden, label): the generator draws obstacles one after
+    // another, so the 8-obstacle instances are the 9-obstacle ones without
+    // the last (tested in `flowopt_planner::scenario`).
     let cases = [
-        (Variant::DropLast, "8 obstacles, all seen"),
-        (Variant::HideLast, "9 obstacles, the 9th unseen by the networks"),
-        (Variant::Plain, "9 obstacles, all seen"),
+        (OBSTACLES, 0, format!("{OBSTACLES} obstacles, all seen")),
+        (OBSTACLES + 1, 1, format!("{} obstacles, the last unseen by the networks", OBSTACLES + 1)),
+        (OBSTACLES + 1, 0, format!("{} obstacles, all seen", OBSTACLES + 1)),
     ];
     let mut panels = Vec::new();
     for method in METHODS {
         let mut bands = Vec::new();
-        for (c, (variant, label)) in cases.into_iter().enumerate() {
-            if method == Method::Baseline && variant == Variant::HideLast {
+        for (c, (obstacles, hidden, label)) in cases.iter().enumerate() {
+            if method == Method::Baseline && *hidden > 0 {
                 continue;
             }
-            let row = Row { variant, ..Row::new(Dim::Two, 16, OBSTACLES + 1, method) };
+            let row = Row { hidden: *hidden, ..Row::new(Dim::Two, 16, *obstacles, method) };
             let lead = vec![label.to_string(), method.name().to_string()];
             if let Some(reason) = runs.unavailable(row) {
                 table.unavailable(&lead, &reason);
@@ -503,7 +544,7 @@ fn robustness(runs: &mut Runs, command: &str, dir: &Path, link: &str) -> Result<
                 format!("{} ({})", num(fine.mean, 1), pct(fine.reached)),
             ]);
             table.row(cells);
-            if method != Method::Baseline && variant != Variant::Plain {
+            if method != Method::Baseline && (*hidden > 0 || *obstacles == OBSTACLES) {
                 let histories: Vec<&[_]> = records.iter().map(|r| r.study.as_slice()).collect();
                 bands.push(BandCurve {
                     label: label.to_string(),
@@ -521,17 +562,21 @@ fn robustness(runs: &mut Runs, command: &str, dir: &Path, link: &str) -> Result<
         }
     }
     let file = "robustness_residuals.svg";
-    if !panels.is_empty() {
+    let figure = if panels.is_empty() {
+        String::new()
+    } else {
         figures::residual_bands(&dir.join(file), &panels, panels.len())?;
-    }
+        format!("![primal residual with a hidden obstacle]({link}/{file})\n\n")
+    };
     Ok(format!(
         "## 5. Robustness: an obstacle the networks do not see (16 robots, 2D)\n\n{}\nCommand: `{command}`. \
-         Each instance is generated with {} static obstacles; the first row removes the last one, the second \
-         hides it from the flow policy and the initialiser while the safety filter enforces it, the third \
-         shows it to everyone. Iterations: the residual study of table 2 from the chosen candidate's start.\n\n\
-         ![primal residual with a hidden obstacle]({link}/{file})\n\n",
+         The instances of table 3, then the same with one more static obstacle (the generator draws \
+         obstacles one after another, so the first {} are the same), hidden from the flow policy and the \
+         initialiser while the safety filter enforces it, then shown to everyone. Iterations: the residual \
+         study of table 2 (the baseline from its cold start, the learned methods from the chosen candidate's \
+         start).\n\n{figure}",
         table.render(),
-        OBSTACLES + 1
+        OBSTACLES
     ))
 }
 
@@ -545,7 +590,7 @@ fn clearance(runs: &mut Runs, command: &str, dir: &Path, link: &str) -> Result<S
         "closest pair, mean / worst (m)",
     ]);
     let mut curves = Vec::new();
-    let samples = 101;
+    let samples = PAIRWISE_INSTANTS;
     for (robots, shade) in [(8, 0), (16, 1), (32, 2)] {
         for (c, method) in METHODS.into_iter().enumerate() {
             let row = Row::new(Dim::Two, robots, 0, method);
@@ -595,10 +640,11 @@ fn clearance(runs: &mut Runs, command: &str, dir: &Path, link: &str) -> Result<S
     )?;
     Ok(format!(
         "## 6. Inter-robot clearance over time (2D, no obstacles)\n\n{}\nCommand: `{command}`. Centre-to-centre \
-         distances on 101 instants over the horizon, over the successful instances of table 1 (the separation \
-         is 0.2 m). Mean pairwise distance: over pairs, instants and instances.\n\n\
+         distances on {PAIRWISE_INSTANTS} instants over the horizon, over the successful instances of table 1 (the separation \
+         is {} m). Mean pairwise distance: over pairs, instants and instances.\n\n\
          ![mean pairwise distance over time]({link}/{file})\n\n",
-        table.render()
+        table.render(),
+        Team::default_for(Dim::Two, 16).separation().0
     ))
 }
 
@@ -651,9 +697,10 @@ fn trajectory_figures(runs: &mut Runs, args: &EvalArgs, link: &str) -> Result<St
     let learned_ok = runs.unavailable(Row::new(Dim::Two, 16, 0, Method::Flowopt)).is_none();
     let methods: Vec<Method> =
         if learned_ok { vec![Method::Baseline, Method::Flowopt] } else { vec![Method::Baseline] };
+    let scene = format!("random 16-robot scene with {OBSTACLES} static obstacles");
     for (problem, file, what) in [
         (&circle, "trajectories_antipodal.svg", "antipodal swap of 16 robots on a circle of radius 0.9 m"),
-        (&obstacles, "trajectories_obstacles.svg", "random 16-robot scene with 8 static obstacles"),
+        (&obstacles, "trajectories_obstacles.svg", scene.as_str()),
     ] {
         let plans = plan_each(runs, problem, &methods, args.seed)?;
         let panels: Vec<PlanPanel> =
@@ -665,7 +712,8 @@ fn trajectory_figures(runs: &mut Runs, args: &EvalArgs, link: &str) -> Result<St
     let panels: Vec<PlanPanel> =
         plans.iter().map(|(m, r)| PlanPanel { title: m.name().to_string(), problem: &moving, xi: &r.xi }).collect();
     let file = "moving_obstacles.svg";
-    figures::snapshots(&dir.join(file), &panels, &[0.0, 1.25, 2.5, 3.75, 5.0])?;
+    let instants: Vec<f64> = (0..5).map(|i| team.horizon * f64::from(i) / 4.0).collect();
+    figures::snapshots(&dir.join(file), &panels, &instants)?;
     let details: Vec<String> = plans.iter().map(|(m, r)| title(*m, r)).collect();
     let _ = write!(
         out,

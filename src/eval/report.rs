@@ -19,8 +19,8 @@ impl Table {
         self.rows.push(cells);
     }
 
-    /// Appends a row whose first cells are `lead` and whose remaining
-    /// cells all say why there is no figure (`reason`, in the first of them).
+    /// Appends a row whose first cells are `lead`, then one cell saying why
+    /// there is no figure (`reason`); the remaining cells stay empty.
     pub fn unavailable(&mut self, lead: &[String], reason: &str) {
         let mut cells = lead.to_vec();
         cells.push(format!("not yet available: {reason}"));
@@ -55,9 +55,17 @@ pub fn ms(v: f64) -> String {
     }
 }
 
-/// A fraction as a percentage.
+/// A fraction as a percentage: whole when it is one, else one decimal
+/// rounded down (99.95% must not read as 100%).
 pub fn pct(v: f64) -> String {
-    if v.is_finite() { format!("{:.0}%", 100.0 * v) } else { "-".into() }
+    let p = 100.0 * v;
+    if !p.is_finite() {
+        "-".into()
+    } else if (p - p.round()).abs() < 1e-9 {
+        format!("{:.0}%", p.round())
+    } else {
+        format!("{:.1}%", (10.0 * p).floor() / 10.0)
+    }
 }
 
 /// A number with `digits` decimals, or `-` when undefined.
@@ -86,8 +94,10 @@ mod tests {
         assert_eq!(ms(12.345), "12.35");
         assert_eq!(ms(1234.5), "1234");
         assert_eq!(ms(f64::NAN), "-");
-        assert_eq!(pct(0.999), "100%");
+        assert_eq!(pct(0.9995), "99.9%", "a failure never reads as 100%");
+        assert_eq!(pct(2.0 / 3.0), "66.6%");
         assert_eq!(pct(0.98), "98%");
+        assert_eq!(pct(1.0), "100%");
         assert_eq!(num(f64::NAN, 2), "-");
         assert_eq!(num(2.0, 1), "2.0");
     }

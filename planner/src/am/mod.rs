@@ -33,6 +33,7 @@
 
 mod projection;
 mod settings;
+mod working_point;
 
 use std::time::Instant;
 
@@ -41,6 +42,7 @@ use rand_chacha::ChaCha8Rng;
 use thiserror::Error;
 
 pub use settings::{AmSettings, RhoSchedule, Stop};
+pub use working_point::{WorkingPoint, WorkingPointError};
 
 use crate::basis::{BOUNDARY_ROWS, Basis};
 use crate::kkt::{KktError, TeamKkt, WORKSPACE_WEIGHT};
@@ -97,7 +99,9 @@ impl Objective {
     }
 
     /// The safety filter's objective for a smoothing weight: the plain
-    /// projection at 0, [`Objective::SmoothProjection`] above it.
+    /// projection at 0, [`Objective::SmoothProjection`] above it. Callers
+    /// validate the weight (finite, 0 or more); anything else not above 0,
+    /// NaN included, gives the plain projection.
     pub fn filter(smoothing: f64) -> Self {
         if smoothing > 0.0 { Objective::SmoothProjection { weight: smoothing } } else { Objective::Projection }
     }
@@ -395,8 +399,8 @@ impl Engine {
     }
 
     /// Validates `problem` against the engine and precomputes what the
-    /// iterations read. `target` is the SF sample (ignored by the optimiser).
-    pub fn prepare(&self, problem: &Problem, target: Option<&[f64]>) -> Result<Prepared, EngineError> {
+    /// iterations read. `sample` is the SF sample (ignored by the optimiser).
+    pub fn prepare(&self, problem: &Problem, sample: Option<&[f64]>) -> Result<Prepared, EngineError> {
         problem.validate()?;
         let t = &problem.team;
         if *t != self.team || problem.obstacles.len() != self.obstacles {
@@ -423,7 +427,7 @@ impl Engine {
                 out
             })
             .collect();
-        let sample = match (self.objective, target) {
+        let sample = match (self.objective, sample) {
             (Objective::Smoothness { .. }, _) => None,
             (_, Some(x)) if x.len() == self.coeff_len() => Some(x),
             (_, x) => {
