@@ -32,8 +32,7 @@ pub struct InitConfig {
     pub unroll: usize,
     /// Smoothing weight of the SF metric it was trained through
     /// (`Objective::filter`; default and weights from before the field: 0,
-    /// the plain projection, which measured better under the pipeline's
-    /// weighted SF than training through that SF, docs/LEARNED.md).
+    /// the plain projection, as the shipped initialiser).
     #[serde(default)]
     pub sf_smoothing: f64,
 }

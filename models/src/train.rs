@@ -494,7 +494,7 @@ pub fn train_init(
             let xi0 = (&batch.sample + delta)?;
             let (xi_l, _, residuals) = b.sf.unroll(&xi0, &out.lambda, &batch, init.unroll)?;
             let fixed_point = residuals.sum(0)?.mean_all()?;
-            let distance = (xi_l - &batch.sample)?.sqr()?.flatten_from(1)?.sum(1)?.mean_all()?;
+            let distance = b.sf.distance(&xi_l, &batch)?.mean_all()?;
             Ok((fixed_point + distance)?)
         },
         progress,

@@ -25,6 +25,8 @@ pub struct UnrolledSf {
     p: Tensor,
     rho_gram: Tensor,
     k11_diff: Tensor,
+    /// The per-robot cost Hessian (the SF's metric), `[n_xi, n_xi]`.
+    cost: Tensor,
     /// `(K11_mean - K11_diff)^T`.
     mean_minus_diff_t: Tensor,
     /// `1 / sep^2` per axis, `[1, D, 1, 1, 1]`.
@@ -78,6 +80,7 @@ impl UnrolledSf {
             p,
             rho_gram: matrix(&ops.rho_gram, nx, nx, dtype)?,
             k11_diff: matrix(&ops.k11_diff, nx, nx, dtype)?,
+            cost: matrix(engine.cost(), nx, nx, dtype)?,
             mean_minus_diff_t: mmd.t()?.contiguous()?,
             inv_robot: Tensor::from_vec(inv, (1, dim, 1, 1, 1), &Device::Cpu)?.to_dtype(dtype)?,
             self_offset: Tensor::from_vec(offset, (1, n, n, 1), &Device::Cpu)?.to_dtype(dtype)?,
@@ -164,6 +167,15 @@ impl UnrolledSf {
             .add(&rhs.broadcast_matmul(&self.k11_diff)?)?
             .broadcast_add(&rhs.mean_keepdim(2)?.broadcast_matmul(&self.mean_minus_diff_t)?)?;
         Ok((next, lambda))
+    }
+
+    /// The SF's own distance from `xi` to the samples, per problem:
+    /// `sum_(axis, robot) (xi - sample)^T C (xi - sample)` with `C` the
+    /// engine's cost Hessian (the squared Euclidean distance for the plain
+    /// projection), `[B]`.
+    pub fn distance(&self, xi: &Tensor, batch: &SfBatch) -> Result<Tensor> {
+        let d = (xi - &batch.sample)?;
+        (d.broadcast_matmul(&self.cost)? * &d)?.flatten_from(1)?.sum(1)
     }
 
     /// Runs `iterations` steps from `(xi, lambda)`; returns the final iterate
@@ -256,6 +268,20 @@ mod tests {
         let theirs_xi: Vec<f64> = stepped.iter().flat_map(|s| s.xi.clone()).collect();
         let theirs_lambda: Vec<f64> = stepped.iter().flat_map(|s| s.lambda.clone()).collect();
         let close = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0.0, f64::max);
+        // The SF's distance of the result from the samples, row by row in the engine's metric.
+        let (samples, c, nx) = (flat(&|s| &s.xi), engine.cost(), 11);
+        let expected: Vec<f64> = ours_xi
+            .chunks(ours_xi.len() / 2)
+            .zip(samples.chunks(samples.len() / 2))
+            .map(|(x, s)| {
+                let d: Vec<f64> = x.iter().zip(s).map(|(a, b)| a - b).collect();
+                d.chunks(nx)
+                    .map(|r| (0..nx).map(|i| (0..nx).map(|j| r[i] * c[i * nx + j] * r[j]).sum::<f64>()).sum::<f64>())
+                    .sum()
+            })
+            .collect();
+        let distance = values(&sf.distance(&xi_l, &batch).unwrap());
+        assert!(close(&distance, &expected) < 1e-9 * expected[0].max(1.0), "{distance:?} vs {expected:?}");
         assert!(close(&ours_xi, &theirs_xi) < 1e-9, "xi differs by {}", close(&ours_xi, &theirs_xi));
         assert!(
             close(&ours_lambda, &theirs_lambda) < 1e-9,

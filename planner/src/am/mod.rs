@@ -655,6 +655,13 @@ impl Engine {
         }
     }
 
+    /// The per-robot cost Hessian `C` (`n_xi x n_xi`, row-major): the
+    /// identity for [`Objective::Projection`], `I + weight Q` for
+    /// [`Objective::SmoothProjection`], the SF's metric.
+    pub fn cost(&self) -> &[f64] {
+        &self.cost
+    }
+
     /// The linear pieces of an iteration at penalty level `level` (clamped
     /// to the schedule).
     pub fn step_operators(&self, level: usize) -> StepOperators {
