@@ -113,7 +113,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
         if args.diversity > 1 && matches!(args.method, Method::Flowopt | Method::FlowNoInit) {
             let mut plans = Vec::new();
             for k in 0..args.diversity as u64 {
-                let (out, _) = planner.plan_learned(args.method, &problem, seed + 1_000_003 * (k + 1))?;
+                let (out, _) = planner.plan_learned(args.method, &problem, 0, seed + 1_000_003 * (k + 1))?;
                 if out.verified {
                     plans.push(out.xi().to_vec());
                 }

@@ -271,10 +271,17 @@ impl Planner {
         self.learned.as_ref()?.check(team).err().map(|e| e.to_string())
     }
 
-    /// Plans `problem` with a learned method; returns the outcome and the
-    /// wall time (ms). `seed` seeds the flow noise.
-    pub fn plan_learned(&mut self, method: Method, problem: &Problem, seed: u64) -> Result<(PipelineOutcome, f64)> {
-        let (mut outcomes, ms) = self.plan_learned_batch(method, std::slice::from_ref(problem), 0, seed)?;
+    /// Plans `problem` with a learned method, its last `hidden` obstacles
+    /// hidden from the networks; returns the outcome and the wall time (ms).
+    /// `seed` seeds the flow noise.
+    pub fn plan_learned(
+        &mut self,
+        method: Method,
+        problem: &Problem,
+        hidden: usize,
+        seed: u64,
+    ) -> Result<(PipelineOutcome, f64)> {
+        let (mut outcomes, ms) = self.plan_learned_batch(method, std::slice::from_ref(problem), hidden, seed)?;
         Ok((outcomes.pop().context("the pipeline returned no plan")?, ms))
     }
 
@@ -329,8 +336,7 @@ impl Planner {
     pub fn run_hiding(&mut self, method: Method, problem: &Problem, hidden: usize, seed: u64) -> Result<Record> {
         let obstacles = problem.obstacles.len();
         if matches!(method, Method::Flowopt | Method::FlowNoInit) {
-            let (mut outs, time_ms) = self.plan_learned_batch(method, std::slice::from_ref(problem), hidden, seed)?;
-            let out = outs.pop().context("the pipeline returned no plan")?;
+            let (out, time_ms) = self.plan_learned(method, problem, hidden, seed)?;
             let chosen = &out.refined[out.chosen];
             let study =
                 self.engine(&problem.team, obstacles, Use::StudyFilter)?.run(&chosen.prepared, chosen.start.clone());

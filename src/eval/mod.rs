@@ -100,6 +100,11 @@ impl Row {
         Team::default_for(self.dim, self.robots)
     }
 
+    /// The team as the tables name it, e.g. `2D, 16`.
+    fn label(&self) -> String {
+        format!("{}D, {}", self.dim.axes(), self.robots)
+    }
+
     /// Instance `seed` of this row.
     fn instance(&self, seed: u64) -> Result<Problem> {
         RandomScenario::new(self.team())
@@ -131,6 +136,17 @@ impl Runs {
             self.unavailable.insert(row.dim, reason);
         }
         self.unavailable[&row.dim].clone()
+    }
+
+    /// The records of `row` for a table row led by `lead`; when the
+    /// row's method cannot plan its team, `None`, and the table gets a row
+    /// saying why.
+    fn for_table(&mut self, row: Row, table: &mut Table, lead: &[String]) -> Result<Option<&[Record]>> {
+        if let Some(reason) = self.unavailable(row) {
+            table.unavailable(lead, &reason);
+            return Ok(None);
+        }
+        self.get(row).map(Some)
     }
 
     /// The records of `row`, planning its instances the first time.
@@ -321,12 +337,8 @@ fn method_comparison(runs: &mut Runs, command: &str) -> Result<String> {
     for ((dim, robots), paper) in TEAMS.into_iter().zip(PAPER_MS) {
         for method in METHODS {
             let row = Row::new(dim, robots, 0, method);
-            let lead = vec![format!("{}D, {robots}", dim.axes()), method.name().to_string()];
-            if let Some(reason) = runs.unavailable(row) {
-                table.unavailable(&lead, &reason);
-                continue;
-            }
-            let records = runs.get(row)?;
+            let lead = vec![row.label(), method.name().to_string()];
+            let Some(records) = runs.for_table(row, &mut table, &lead)? else { continue };
             let ok: Vec<&Record> = records.iter().filter(|r| r.success).collect();
             let times: Vec<f64> = records.iter().map(|r| r.time_ms).collect();
             let clearance: Vec<f64> = ok.iter().map(|r| r.min_clearance).collect();
@@ -373,12 +385,8 @@ fn iterations(runs: &mut Runs, command: &str) -> Result<String> {
     for (dim, robots) in [(Dim::Two, 16), (Dim::Two, 32), (Dim::Three, 16), (Dim::Three, 32)] {
         for method in METHODS {
             let row = Row::new(dim, robots, 0, method);
-            let lead = vec![format!("{}D, {robots}", dim.axes()), method.name().to_string()];
-            if let Some(reason) = runs.unavailable(row) {
-                table.unavailable(&lead, &reason);
-                continue;
-            }
-            let records = runs.get(row)?;
+            let lead = vec![row.label(), method.name().to_string()];
+            let Some(records) = runs.for_table(row, &mut table, &lead)? else { continue };
             let coarse = IterationStats::of(records.iter().map(|r| r.iterations_to_0_01));
             let fine = IterationStats::of(records.iter().map(|r| r.iterations_to_0_001));
             let mut cells = lead;
@@ -528,11 +536,7 @@ fn robustness(runs: &mut Runs, command: &str, dir: &Path, link: &str) -> Result<
             }
             let row = Row { hidden: *hidden, ..Row::new(Dim::Two, 16, *obstacles, method) };
             let lead = vec![label.to_string(), method.name().to_string()];
-            if let Some(reason) = runs.unavailable(row) {
-                table.unavailable(&lead, &reason);
-                continue;
-            }
-            let records = runs.get(row)?;
+            let Some(records) = runs.for_table(row, &mut table, &lead)? else { continue };
             let coarse = IterationStats::of(records.iter().map(|r| r.iterations_to_0_01));
             let fine = IterationStats::of(records.iter().map(|r| r.iterations_to_0_001));
             let times: Vec<f64> = records.iter().map(|r| r.time_ms).collect();
@@ -594,13 +598,9 @@ fn clearance(runs: &mut Runs, command: &str, dir: &Path, link: &str) -> Result<S
     for (robots, shade) in [(8, 0), (16, 1), (32, 2)] {
         for (c, method) in METHODS.into_iter().enumerate() {
             let row = Row::new(Dim::Two, robots, 0, method);
-            let lead = vec![format!("2D, {robots}"), method.name().to_string()];
-            if let Some(reason) = runs.unavailable(row) {
-                table.unavailable(&lead, &reason);
-                continue;
-            }
+            let lead = vec![row.label(), method.name().to_string()];
             let team = row.team();
-            let records = runs.get(row)?;
+            let Some(records) = runs.for_table(row, &mut table, &lead)? else { continue };
             let profiles: Vec<PairwiseProfile> =
                 records.iter().filter(|r| r.success).map(|r| PairwiseProfile::of(&team, &r.xi, samples)).collect();
             let over_time: Vec<f64> =
