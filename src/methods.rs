@@ -57,7 +57,7 @@ pub struct LearnedArgs {
     #[arg(long, default_value = "models/weights/init.safetensors")]
     pub init_weights: PathBuf,
     /// Candidates sampled per problem.
-    #[arg(long, default_value_t = 16)]
+    #[arg(long, default_value_t = PipelineSettings::default().candidates)]
     pub candidates: usize,
     /// Flow integration steps.
     #[arg(long, default_value_t = 4)]
@@ -66,7 +66,7 @@ pub struct LearnedArgs {
     #[arg(long, value_enum, default_value = "euler")]
     pub solver: SolverArg,
     /// Candidates refined by the safety filter.
-    #[arg(long, default_value_t = 4)]
+    #[arg(long, default_value_t = PipelineSettings::default().top_k)]
     pub top_k: usize,
     /// Scale of the flow's initial noise.
     #[arg(long, default_value_t = 1.0)]
@@ -75,6 +75,10 @@ pub struct LearnedArgs {
     /// (`Objective::SmoothProjection`; 0 is the paper's plain projection).
     #[arg(long, default_value_t = flowopt_models::pipeline::DEFAULT_SF_SMOOTHING, value_parser = smoothing_weight)]
     pub sf_smoothing: f64,
+    /// Leave samples that pass through static obstacles as sampled (no
+    /// rerouting of their robots before the safety filter).
+    #[arg(long)]
+    pub no_reroute: bool,
 }
 
 /// Flow integrator on the command line.
@@ -113,6 +117,7 @@ impl LearnedArgs {
             top_k: self.top_k,
             temperature: self.temperature,
             use_init: method == Method::Flowopt,
+            reroute: !self.no_reroute,
             ..PipelineSettings::default()
         }
     }

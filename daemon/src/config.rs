@@ -6,6 +6,7 @@ use std::path::{Path, PathBuf};
 
 use flowopt_client::messages::check_team_name;
 use flowopt_client::{MAX_COEFFS, MAX_OBSTACLES, MAX_ROBOTS};
+use flowopt_models::pipeline::PipelineSettings;
 use flowopt_planner::problem::{Dim, ProblemError, Team};
 use flowopt_planner::scenario::{FileBox, FileShape};
 
@@ -152,13 +153,13 @@ fn default_sf_smoothing() -> f64 {
     flowopt_models::pipeline::DEFAULT_SF_SMOOTHING
 }
 fn default_candidates() -> usize {
-    16
+    PipelineSettings::default().candidates
 }
 fn default_flow_steps() -> usize {
-    4
+    PipelineSettings::default().steps
 }
 fn default_top_k() -> usize {
-    4
+    PipelineSettings::default().top_k
 }
 
 fn default_horizon() -> f64 {

@@ -1,5 +1,7 @@
 //! The Flow-Opt pipeline (METHOD.md section 5): sample candidates from the
-//! flow policy, rank them by primal residual, start the safety filter on
+//! flow policy, reroute the robots a sample leaves inside a static obstacle
+//! (the policy barely reads obstacles: docs/LEARNED.md), rank the
+//! candidates by primal residual, start the safety filter on
 //! the best few (from the initialiser's output, or from the samples
 //! themselves for the `flow-no-init` ablation), and return the verified
 //! plan with the lowest smoothness. Every stage is timed.
@@ -51,11 +53,29 @@ pub struct PipelineSettings {
     /// Scale of the initial noise (1 samples the learned distribution;
     /// lower values trade diversity for samples nearer its mode).
     pub temperature: f64,
+    /// Before ranking, give every robot whose sample passes through a
+    /// static obstacle the optimiser's route around the static obstacles
+    /// ([`flowopt_planner::am::Rerouter`]); the safety filter then stays
+    /// near that route.
+    pub reroute: bool,
 }
 
+/// The defaults: 8 candidates, the best 6 refined. Measured on 100 unseen
+/// 16-robot instances with 8 obstacles (docs/LEARNED.md): 16 candidates
+/// and the top 4 solved 97%, the top 6 of 16 99%, the top 6 of 8 100% in
+/// 27% less time (sampling costs about 20 ms before the first candidate).
 impl Default for PipelineSettings {
     fn default() -> Self {
-        Self { candidates: 16, steps: 4, solver: Solver::Euler, top_k: 4, use_init: true, threads: 2, temperature: 1.0 }
+        Self {
+            candidates: 8,
+            steps: 4,
+            solver: Solver::Euler,
+            top_k: 6,
+            use_init: true,
+            threads: 2,
+            temperature: 1.0,
+            reroute: true,
+        }
     }
 }
 
@@ -294,10 +314,16 @@ impl FlowOpt {
         let mut jobs = Vec::with_capacity(queries.len() * top_k);
         for (qi, q) in queries.iter().enumerate() {
             let reference = coding.reference(q.enforced);
-            let decoded: Vec<Vec<f64>> = raw[qi * count * width..(qi + 1) * count * width]
+            let mut decoded: Vec<Vec<f64>> = raw[qi * count * width..(qi + 1) * count * width]
                 .chunks_exact(width)
                 .map(|t| coding.decode(&reference, t))
                 .collect();
+            if settings.reroute {
+                let mut rerouter = sf.rerouter(q.enforced);
+                for x in &mut decoded {
+                    rerouter.apply(x);
+                }
+            }
             let probe = sf.prepare(q.enforced, Some(&decoded[0]))?;
             let mut order: Vec<(usize, f64)> =
                 decoded.iter().map(|x| sf.primal_residual(&probe, x)).enumerate().collect();

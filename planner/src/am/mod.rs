@@ -37,6 +37,7 @@ mod working_point;
 
 use std::time::Instant;
 
+use nalgebra::Vector3;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use thiserror::Error;
@@ -275,6 +276,61 @@ impl Prepared {
     }
 }
 
+/// Repairs SF samples the way the optimiser's cold start avoids static
+/// obstacles: a robot whose curve passes through an inflated static
+/// obstacle at a constrained sample gets a curve along a route around the
+/// static obstacles instead ([`crate::route`]). Each robot is routed at
+/// most once, however many samples of the problem are repaired.
+pub struct Rerouter<'e> {
+    engine: &'e Engine,
+    problem: &'e Problem,
+    blockers: Blockers,
+    boundary: Vec<f64>,
+    /// Per robot: not routed yet, or its routed curve (`None`: walled off).
+    routes: Vec<Option<Option<Vec<f64>>>>,
+}
+
+impl Rerouter<'_> {
+    /// Reroutes the blocked robots of `xi` (the problem's coefficients,
+    /// `[axis][robot][coef]`); returns how many were rerouted.
+    pub fn apply(&mut self, xi: &mut [f64]) -> usize {
+        if self.blockers.is_empty() {
+            return 0;
+        }
+        let e = self.engine;
+        let (n, axes, k) = (e.team.robots, e.team.dim.axes(), e.team.samples);
+        let positions = JointPlan::new(&e.team, xi.to_vec()).sampled(k, 0);
+        let mut count = 0;
+        for i in 0..n {
+            let blocked = (FIRST_CONSTRAINED_SAMPLE..k).any(|s| {
+                let mut p = Vector3::zeros();
+                for a in 0..axes {
+                    p[a] = positions[(a * n + i) * k + s];
+                }
+                self.blockers.blocks(&p)
+            });
+            if !blocked {
+                continue;
+            }
+            let route =
+                self.routes[i].get_or_insert_with(|| e.routed_curve(self.problem, &self.blockers, &self.boundary, i));
+            if let Some(curve) = route {
+                set_curve(xi, curve, n, e.n_xi, i);
+                count += 1;
+            }
+        }
+        count
+    }
+}
+
+/// Writes robot `i`'s `curve` (`[axis][coef]`, `nx` per axis) into the
+/// coefficients `xi` of a team of `n` (`[axis][robot][coef]`).
+fn set_curve(xi: &mut [f64], curve: &[f64], n: usize, nx: usize, i: usize) {
+    for (a, c) in curve.chunks_exact(nx).enumerate() {
+        xi[(a * n + i) * nx..(a * n + i + 1) * nx].copy_from_slice(c);
+    }
+}
+
 /// Runs single AM iterations with buffers allocated once: the unit the
 /// per-iteration benchmarks time and the learned initialiser's unrolled
 /// solver is checked against.
@@ -489,7 +545,6 @@ impl Engine {
     /// boundary conditions, or, with `routed_start`, a fitted route around the
     /// static obstacles when its straight segment crosses one.
     fn smooth_start(&self, problem: &Problem, b: &[f64]) -> Vec<f64> {
-        let dim = self.team.dim.axes();
         let n = self.team.robots;
         let nx = self.n_xi;
         let mut xi = vec![0.0; self.coeff_len()];
@@ -499,7 +554,7 @@ impl Engine {
         if !self.settings.routed_start {
             return xi;
         }
-        let blockers = Blockers::new(&self.team, &problem.obstacles, self.settings.margin, 0.0);
+        let blockers = self.blockers(problem);
         if blockers.is_empty() {
             return xi;
         }
@@ -508,16 +563,42 @@ impl Engine {
             if !blockers.segment_blocked(&start, &goal) {
                 continue;
             }
-            let Some(path) = route(&self.team, &blockers, &start, &goal) else {
-                continue;
-            };
-            for (a, q) in self.fitter.timed_samples(&path, dim).iter().enumerate() {
-                let row = a * n + i;
-                let bv = &b[row * BOUNDARY_ROWS..(row + 1) * BOUNDARY_ROWS];
-                self.fitter.fit(q, bv, &mut xi[row * nx..(row + 1) * nx]);
+            if let Some(curve) = self.routed_curve(problem, &blockers, b, i) {
+                set_curve(&mut xi, &curve, n, nx, i);
             }
         }
         xi
+    }
+
+    /// The static obstacles of `problem` inflated by the robot size and the
+    /// safety margin, for routing.
+    fn blockers(&self, problem: &Problem) -> Blockers {
+        Blockers::new(&self.team, &problem.obstacles, self.settings.margin, 0.0)
+    }
+
+    /// Robot `i`'s curve along a route around `blockers` meeting its
+    /// boundary values (from `b`, [`Problem::boundary_values`]), `[axis][coef]`;
+    /// `None` when its goal is walled off on the routing grid.
+    fn routed_curve(&self, problem: &Problem, blockers: &Blockers, b: &[f64], i: usize) -> Option<Vec<f64>> {
+        let (n, nx) = (self.team.robots, self.n_xi);
+        let path = route(&self.team, blockers, &problem.starts[i].position, &problem.goals[i])?;
+        let mut curve = vec![0.0; self.team.dim.axes() * nx];
+        for (a, q) in self.fitter.timed_samples(&path, self.team.dim.axes()).iter().enumerate() {
+            let row = a * n + i;
+            self.fitter.fit(q, &b[row * BOUNDARY_ROWS..(row + 1) * BOUNDARY_ROWS], &mut curve[a * nx..(a + 1) * nx]);
+        }
+        Some(curve)
+    }
+
+    /// A [`Rerouter`] for `problem` (same team as the engine).
+    pub fn rerouter<'e>(&'e self, problem: &'e Problem) -> Rerouter<'e> {
+        Rerouter {
+            engine: self,
+            problem,
+            blockers: self.blockers(problem),
+            boundary: problem.boundary_values(),
+            routes: vec![None; problem.robots()],
+        }
     }
 
     /// The cold start with a zero multiplier: for the optimiser see
@@ -943,5 +1024,46 @@ mod tests {
         let sf = Engine::new(&team, 0, Objective::Projection, AmSettings::safety_filter()).unwrap();
         let problem = RandomScenario::new(team).generate(1).unwrap();
         assert!(matches!(sf.filter(&problem, &[0.0; 3], None), Err(EngineError::BadLength { expected: 88, got: 3 })));
+    }
+
+    #[test]
+    fn the_rerouter_moves_only_robots_that_cross_a_static_obstacle() {
+        use crate::problem::{Obstacle, Spheroid, StartState};
+        let team = Team::default_for(Dim::Two, 2);
+        let at = |x: f64, y: f64| Vector3::new(x, y, 0.0);
+        let problem = Problem {
+            team: team.clone(),
+            starts: vec![StartState::at_rest(at(-0.8, 0.0)), StartState::at_rest(at(-0.8, 0.7))],
+            goals: vec![at(0.8, 0.0), at(0.8, 0.7)],
+            obstacles: vec![Obstacle {
+                position: at(0.0, 0.02),
+                velocity: Vector3::zeros(),
+                shape: Spheroid::ball(0.2),
+            }],
+        };
+        let engine = Engine::new(&team, 1, Objective::filter(3.0), AmSettings::safety_filter()).unwrap();
+        // Straight lines: robot 0 crosses the obstacle, robot 1 passes above it.
+        let straight = Engine::new(
+            &team,
+            1,
+            Objective::smoothness(),
+            AmSettings { routed_start: false, ..AmSettings::optimiser() },
+        )
+        .unwrap();
+        let mut xi = straight.cold_start(&straight.prepare(&problem, None).unwrap()).xi;
+        let before = xi.clone();
+        let mut rerouter = engine.rerouter(&problem);
+        assert_eq!(rerouter.apply(&mut xi), 1);
+        let nx = team.degree + 1;
+        for a in 0..2 {
+            let row = (a * 2 + 1) * nx..(a * 2 + 2) * nx;
+            assert_eq!(xi[row.clone()], before[row], "robot 1 keeps its curve");
+        }
+        let m = Metrics::measure(&problem, &JointPlan::new(&team, xi.clone()));
+        assert!(m.boundary_error < 1e-9, "the route keeps the boundary conditions: {}", m.boundary_error);
+        assert!(m.min_obstacle_clearance > 0.0, "the route clears the obstacle: {}", m.min_obstacle_clearance);
+        let once = xi.clone();
+        rerouter.apply(&mut xi);
+        assert_eq!(xi, once, "rerouting twice changes nothing");
     }
 }
