@@ -60,7 +60,7 @@ pub struct LearnedArgs {
     #[arg(long, default_value_t = PipelineSettings::default().candidates)]
     pub candidates: usize,
     /// Flow integration steps.
-    #[arg(long, default_value_t = 4)]
+    #[arg(long, default_value_t = PipelineSettings::default().steps)]
     pub flow_steps: usize,
     /// Flow integrator.
     #[arg(long, value_enum, default_value = "euler")]

@@ -278,6 +278,12 @@ struct HeaderFacts<'a> {
 fn header(f: &HeaderFacts) -> String {
     let optimiser = AmSettings::optimiser();
     let pipeline = f.learned.settings(Method::Flowopt);
+    let filter = AmSettings::safety_filter();
+    let reroute = if pipeline.reroute {
+        "robots a sample leaves inside a static obstacle rerouted around the obstacles (`am::Rerouter`), "
+    } else {
+        ""
+    };
     let metric = if f.learned.sf_smoothing > 0.0 {
         format!(
             "in the smoothness-weighted metric with weight {} (`Objective::SmoothProjection`, docs/LEARNED.md)",
@@ -297,8 +303,8 @@ fn header(f: &HeaderFacts) -> String {
          wall-clock times per instance.\n\n\
          Methods: **baseline** is the from-scratch AM optimiser (smoothness cost, routed cold start, up to {} \
          restarts sharing an iteration cap of {}); **flowopt** is the learned pipeline ({} flow candidates, {} \
-         {:?} steps, top {} by primal residual, SF initialiser, safety filter on {} threads {metric}, the \
-         verified plan with the lowest smoothness); **flow-no-init** is the same with the safety filter \
+         {:?} steps, {reroute}top {} by primal residual, SF initialiser, safety filter on {} threads {metric} \
+         with the penalty starting at {} and doubling every {} iterations up to {}, cap {}, the verified plan with the lowest smoothness); **flow-no-init** is the same with the safety filter \
          started from the flow samples (the paper's ablation). Rows a method cannot plan say why. Success is \
          the dense verdict of `flowopt_planner::metrics` (every separation kept to 1% on 4K instants, box, \
          boundary conditions). Smoothness is the mean over robots of the sum of squared accelerations over \
@@ -318,6 +324,10 @@ fn header(f: &HeaderFacts) -> String {
         pipeline.solver,
         pipeline.top_k,
         pipeline.threads,
+        filter.rho.initial,
+        filter.rho.every,
+        filter.rho.max,
+        filter.max_iterations,
     )
 }
 
@@ -576,7 +586,7 @@ fn robustness(runs: &mut Runs, command: &str, dir: &Path, link: &str) -> Result<
         "## 5. Robustness: an obstacle the networks do not see (16 robots, 2D)\n\n{}\nCommand: `{command}`. \
          The instances of table 3, then the same with one more static obstacle (the generator draws \
          obstacles one after another, so the first {} are the same), hidden from the flow policy and the \
-         initialiser while the safety filter enforces it, then shown to everyone. Iterations: the residual \
+         initialiser while the rerouting and the safety filter enforce it, then shown to everyone. Iterations: the residual \
          study of table 2 (the baseline from its cold start, the learned methods from the chosen candidate's \
          start).\n\n{figure}",
         table.render(),

@@ -280,12 +280,17 @@ impl Prepared {
 /// obstacles: a robot whose curve passes through an inflated static
 /// obstacle at a constrained sample gets a curve along a route around the
 /// static obstacles instead ([`crate::route`]). Each robot is routed at
-/// most once, however many samples of the problem are repaired.
+/// most once, however many samples of the problem are repaired. A robot
+/// whose start or goal already lies within an inflated obstacle (a measured
+/// start in near-contact) is left to the filter: every curve of it would
+/// count as blocked.
 pub struct Rerouter<'e> {
     engine: &'e Engine,
     problem: &'e Problem,
     blockers: Blockers,
     boundary: Vec<f64>,
+    /// Per robot: its start or goal is within an inflated obstacle.
+    pinned: Vec<bool>,
     /// Per robot: not routed yet, or its routed curve (`None`: walled off).
     routes: Vec<Option<Option<Vec<f64>>>>,
 }
@@ -293,7 +298,12 @@ pub struct Rerouter<'e> {
 impl Rerouter<'_> {
     /// Reroutes the blocked robots of `xi` (the problem's coefficients,
     /// `[axis][robot][coef]`); returns how many were rerouted.
+    ///
+    /// # Panics
+    /// If `xi` is not of the engine's length (the problem must be of the
+    /// engine's team: [`Engine::prepare`] checks it).
     pub fn apply(&mut self, xi: &mut [f64]) -> usize {
+        assert_eq!(xi.len(), self.engine.coeff_len(), "coefficients of the engine's team");
         if self.blockers.is_empty() {
             return 0;
         }
@@ -302,6 +312,9 @@ impl Rerouter<'_> {
         let positions = JointPlan::new(&e.team, xi.to_vec()).sampled(k, 0);
         let mut count = 0;
         for i in 0..n {
+            if self.pinned[i] {
+                continue;
+            }
             let blocked = (FIRST_CONSTRAINED_SAMPLE..k).any(|s| {
                 let mut p = Vector3::zeros();
                 for a in 0..axes {
@@ -590,15 +603,30 @@ impl Engine {
         Some(curve)
     }
 
-    /// A [`Rerouter`] for `problem` (same team as the engine).
-    pub fn rerouter<'e>(&'e self, problem: &'e Problem) -> Rerouter<'e> {
-        Rerouter {
+    /// A [`Rerouter`] for `problem`, which must be of the engine's team
+    /// ([`EngineError::ShapeMismatch`] otherwise).
+    pub fn rerouter<'e>(&'e self, problem: &'e Problem) -> Result<Rerouter<'e>, EngineError> {
+        if problem.team != self.team {
+            return Err(EngineError::ShapeMismatch {
+                expected: format!("{:?}", self.team),
+                got: format!("{:?}", problem.team),
+            });
+        }
+        let blockers = self.blockers(problem);
+        let pinned = problem
+            .starts
+            .iter()
+            .zip(&problem.goals)
+            .map(|(s, g)| blockers.blocks(&s.position) || blockers.blocks(g))
+            .collect();
+        Ok(Rerouter {
             engine: self,
             problem,
-            blockers: self.blockers(problem),
+            blockers,
             boundary: problem.boundary_values(),
+            pinned,
             routes: vec![None; problem.robots()],
-        }
+        })
     }
 
     /// The cold start with a zero multiplier: for the optimiser see
@@ -1052,7 +1080,7 @@ mod tests {
         .unwrap();
         let mut xi = straight.cold_start(&straight.prepare(&problem, None).unwrap()).xi;
         let before = xi.clone();
-        let mut rerouter = engine.rerouter(&problem);
+        let mut rerouter = engine.rerouter(&problem).unwrap();
         assert_eq!(rerouter.apply(&mut xi), 1);
         let nx = team.degree + 1;
         for a in 0..2 {
@@ -1065,5 +1093,30 @@ mod tests {
         let once = xi.clone();
         rerouter.apply(&mut xi);
         assert_eq!(xi, once, "rerouting twice changes nothing");
+    }
+
+    #[test]
+    fn the_rerouter_leaves_near_contact_robots_and_refuses_other_teams() {
+        use crate::problem::{Obstacle, Spheroid, StartState};
+        let team = Team::default_for(Dim::Two, 1);
+        let at = |x: f64, y: f64| Vector3::new(x, y, 0.0);
+        let ball = Spheroid::ball(0.2);
+        let engine = Engine::new(&team, 1, Objective::filter(3.0), AmSettings::safety_filter()).unwrap();
+        // The start touches the obstacle within the safety margin (scaled
+        // distance 1.02 < 1.05) and the straight line runs past it.
+        let (a, _) = team.obstacle_separation(&ball);
+        let problem = Problem {
+            team: team.clone(),
+            starts: vec![StartState::at_rest(at(-0.5, 0.0))],
+            goals: vec![at(0.8, 0.0)],
+            obstacles: vec![Obstacle { position: at(-0.5 - 1.02 * a, 0.0), velocity: Vector3::zeros(), shape: ball }],
+        };
+        let prepared = engine.prepare(&problem, Some(&vec![0.0; engine.coeff_len()])).unwrap();
+        let mut xi = engine.smooth_start(&problem, &prepared.boundary);
+        let before = xi.clone();
+        assert_eq!(engine.rerouter(&problem).unwrap().apply(&mut xi), 0);
+        assert_eq!(xi, before);
+        let other = Problem { team: Team::default_for(Dim::Two, 2), ..problem };
+        assert!(matches!(engine.rerouter(&other), Err(EngineError::ShapeMismatch { .. })));
     }
 }
