@@ -471,13 +471,8 @@ impl Engine {
     /// iterations read. `sample` is the SF sample (ignored by the optimiser).
     pub fn prepare(&self, problem: &Problem, sample: Option<&[f64]>) -> Result<Prepared, EngineError> {
         problem.validate()?;
+        self.check_shape(problem)?;
         let t = &problem.team;
-        if *t != self.team || problem.obstacles.len() != self.obstacles {
-            return Err(EngineError::ShapeMismatch {
-                expected: format!("{:?} with {} obstacles", self.team, self.obstacles),
-                got: format!("{:?} with {} obstacles", t, problem.obstacles.len()),
-            });
-        }
         let dim = t.dim.axes();
         let n = t.robots;
         let b = problem.boundary_values();
@@ -583,6 +578,18 @@ impl Engine {
         xi
     }
 
+    /// Whether `problem` has the engine's team and obstacle count
+    /// ([`EngineError::ShapeMismatch`] otherwise).
+    fn check_shape(&self, problem: &Problem) -> Result<(), EngineError> {
+        if problem.team != self.team || problem.obstacles.len() != self.obstacles {
+            return Err(EngineError::ShapeMismatch {
+                expected: format!("{:?} with {} obstacles", self.team, self.obstacles),
+                got: format!("{:?} with {} obstacles", problem.team, problem.obstacles.len()),
+            });
+        }
+        Ok(())
+    }
+
     /// The static obstacles of `problem` inflated by the robot size and the
     /// safety margin, for routing.
     fn blockers(&self, problem: &Problem) -> Blockers {
@@ -603,15 +610,10 @@ impl Engine {
         Some(curve)
     }
 
-    /// A [`Rerouter`] for `problem`, which must be of the engine's team
-    /// ([`EngineError::ShapeMismatch`] otherwise).
+    /// A [`Rerouter`] for `problem`, which must have the engine's team and
+    /// obstacle count ([`EngineError::ShapeMismatch`] otherwise).
     pub fn rerouter<'e>(&'e self, problem: &'e Problem) -> Result<Rerouter<'e>, EngineError> {
-        if problem.team != self.team {
-            return Err(EngineError::ShapeMismatch {
-                expected: format!("{:?}", self.team),
-                got: format!("{:?}", problem.team),
-            });
-        }
+        self.check_shape(problem)?;
         let blockers = self.blockers(problem);
         let pinned = problem
             .starts
@@ -1070,15 +1072,9 @@ mod tests {
             }],
         };
         let engine = Engine::new(&team, 1, Objective::filter(3.0), AmSettings::safety_filter()).unwrap();
-        // Straight lines: robot 0 crosses the obstacle, robot 1 passes above it.
-        let straight = Engine::new(
-            &team,
-            1,
-            Objective::smoothness(),
-            AmSettings { routed_start: false, ..AmSettings::optimiser() },
-        )
-        .unwrap();
-        let mut xi = straight.cold_start(&straight.prepare(&problem, None).unwrap()).xi;
+        // Straight lines (the SF routes no cold start): robot 0 crosses the
+        // obstacle, robot 1 passes above it.
+        let mut xi = engine.smooth_start(&problem, &problem.boundary_values());
         let before = xi.clone();
         let mut rerouter = engine.rerouter(&problem).unwrap();
         assert_eq!(rerouter.apply(&mut xi), 1);
@@ -1111,8 +1107,7 @@ mod tests {
             goals: vec![at(0.8, 0.0)],
             obstacles: vec![Obstacle { position: at(-0.5 - 1.02 * a, 0.0), velocity: Vector3::zeros(), shape: ball }],
         };
-        let prepared = engine.prepare(&problem, Some(&vec![0.0; engine.coeff_len()])).unwrap();
-        let mut xi = engine.smooth_start(&problem, &prepared.boundary);
+        let mut xi = engine.smooth_start(&problem, &problem.boundary_values());
         let before = xi.clone();
         assert_eq!(engine.rerouter(&problem).unwrap().apply(&mut xi), 0);
         assert_eq!(xi, before);
