@@ -133,7 +133,8 @@ struct InitArgs {
     /// Token width.
     #[arg(long, default_value_t = 64)]
     width: usize,
-    /// Unrolled SF iterations.
+    /// Unrolled SF iterations (at the SF's penalty schedule: all at the
+    /// first penalty up to 25).
     #[arg(long, default_value_t = 15)]
     unroll: usize,
     /// Training problems per (team size, obstacle count) bucket.

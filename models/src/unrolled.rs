@@ -5,30 +5,39 @@
 //! shape: the projection pushes every violating pair or robot-obstacle
 //! offset `d` to `d max(1, 1/r)` (normalised differences, no angles) and
 //! clamps positions into the box, then the multiplier and xi-steps apply
-//! the same pre-factored operators. Tensors are `[B, axis, robot, coef]`,
-//! the planner's `[axis][robot][coef]` per problem.
+//! the same pre-factored operators, at the penalty the engine's schedule
+//! gives each iteration. Tensors are `[B, axis, robot, coef]`, the
+//! planner's `[axis][robot][coef]` per problem.
 
 use candle_core::{DType, Device, Result, Tensor};
-use flowopt_planner::am::{Engine, Prepared};
+use flowopt_planner::am::{Engine, Prepared, RhoSchedule};
 
 /// Diagonal offset that keeps a robot from interacting with itself.
 const SELF_OFFSET: f64 = 1e6;
 
+/// The operators of one penalty level.
+#[derive(Debug, Clone)]
+struct LevelOps {
+    rho: f64,
+    rho_gram: Tensor,
+    k11_diff: Tensor,
+    /// `(K11_mean - K11_diff)^T`.
+    mean_minus_diff_t: Tensor,
+}
+
 /// The constant operators of one engine (team shape, obstacle count).
 #[derive(Debug, Clone)]
 pub struct UnrolledSf {
-    rho: f64,
+    /// One per penalty level of the engine's schedule.
+    levels: Vec<LevelOps>,
+    schedule: RhoSchedule,
     modes: f64,
     /// `P^T`, `[n_xi, K]`.
     pt: Tensor,
     /// `P`, `[K, n_xi]`.
     p: Tensor,
-    rho_gram: Tensor,
-    k11_diff: Tensor,
     /// The per-robot cost Hessian (the SF's metric), `[n_xi, n_xi]`.
     cost: Tensor,
-    /// `(K11_mean - K11_diff)^T`.
-    mean_minus_diff_t: Tensor,
     /// `1 / sep^2` per axis, `[1, D, 1, 1, 1]`.
     inv_robot: Tensor,
     /// `n x n` diagonal offset, `[1, n, n, 1]`.
@@ -39,8 +48,8 @@ pub struct UnrolledSf {
 /// The per-problem data of a batch.
 #[derive(Debug, Clone)]
 pub struct SfBatch {
-    /// `[B, D, n, n_xi]`.
-    pub beta: Tensor,
+    /// The xi-step's boundary part per penalty level, `[B, D, n, n_xi]` each.
+    pub beta: Vec<Tensor>,
     /// The cost's linear term (see `Prepared::target`), `[B, D, n, n_xi]`.
     pub target: Tensor,
     /// The samples the SF repairs, `[B, D, n, n_xi]`.
@@ -58,8 +67,8 @@ fn matrix(values: &[f64], rows: usize, cols: usize, dtype: DType) -> Result<Tens
 }
 
 impl UnrolledSf {
-    /// The operators of `engine` (a safety filter) at its first penalty
-    /// level, in `dtype`.
+    /// The operators of `engine` (a safety filter) at every level of its
+    /// penalty schedule, in `dtype`.
     pub fn new(engine: &Engine, dtype: DType) -> Result<Self> {
         let ops = engine.step_operators(0);
         let team = engine.team();
@@ -67,21 +76,29 @@ impl UnrolledSf {
         let nx = engine.basis().n_xi();
         let k = ops.taus.len();
         let p = matrix(&ops.p, k, nx, dtype)?;
-        let mmd = matrix(&ops.mean_minus_diff, nx, nx, dtype)?;
+        let levels = (0..engine.rho_levels().len())
+            .map(|l| {
+                let ops = engine.step_operators(l);
+                Ok(LevelOps {
+                    rho: ops.rho,
+                    rho_gram: matrix(&ops.rho_gram, nx, nx, dtype)?,
+                    k11_diff: matrix(&ops.k11_diff, nx, nx, dtype)?,
+                    mean_minus_diff_t: matrix(&ops.mean_minus_diff, nx, nx, dtype)?.t()?.contiguous()?,
+                })
+            })
+            .collect::<Result<Vec<_>>>()?;
         let (a, b) = team.separation();
         let margin = 1.0 + engine.settings().margin;
         let sep = [a, a, b].map(|s| s * margin);
         let inv: Vec<f64> = (0..dim).map(|ax| 1.0 / (sep[ax] * sep[ax])).collect();
         let offset: Vec<f64> = (0..n * n).map(|i| if i / n == i % n { SELF_OFFSET } else { 0.0 }).collect();
         Ok(Self {
-            rho: ops.rho,
+            levels,
+            schedule: engine.settings().rho,
             modes: ops.modes,
             pt: p.t()?.contiguous()?,
             p,
-            rho_gram: matrix(&ops.rho_gram, nx, nx, dtype)?,
-            k11_diff: matrix(&ops.k11_diff, nx, nx, dtype)?,
             cost: matrix(engine.cost(), nx, nx, dtype)?,
-            mean_minus_diff_t: mmd.t()?.contiguous()?,
             inv_robot: Tensor::from_vec(inv, (1, dim, 1, 1, 1), &Device::Cpu)?.to_dtype(dtype)?,
             self_offset: Tensor::from_vec(offset, (1, n, n, 1), &Device::Cpu)?.to_dtype(dtype)?,
             dtype,
@@ -129,7 +146,7 @@ impl UnrolledSf {
         let corner =
             |c: [f64; 3]| Tensor::from_vec(c[..dim].to_vec(), (1, dim, 1, 1), &Device::Cpu)?.to_dtype(self.dtype);
         Ok(SfBatch {
-            beta: stack(&|p| p.beta(0))?,
+            beta: (0..self.levels.len()).map(|l| stack(&|p| p.beta(l))).collect::<Result<_>>()?,
             target: stack(&|p| p.target())?,
             sample: stack(&|p| p.cold())?,
             obstacles,
@@ -156,16 +173,17 @@ impl UnrolledSf {
         corr + (clamped - pos)?
     }
 
-    /// One SF iteration from `(xi, lambda)`.
-    pub fn step(&self, xi: &Tensor, lambda: &Tensor, batch: &SfBatch) -> Result<(Tensor, Tensor)> {
+    /// Iteration `l` from `(xi, lambda)`, at the schedule's penalty for `l`.
+    pub fn step(&self, l: usize, xi: &Tensor, lambda: &Tensor, batch: &SfBatch) -> Result<(Tensor, Tensor)> {
+        let level = self.schedule.level_at(l, self.levels.len());
+        let ops = &self.levels[level];
         let g = self.corrections(xi, batch)?.broadcast_matmul(&self.p)?;
-        let lambda = (lambda + (&g * self.rho)?)?;
+        let lambda = (lambda + (&g * ops.rho)?)?;
         let u = ((xi * self.modes)?.broadcast_sub(&xi.sum_keepdim(2)?))?;
-        let rhs = ((&batch.target + (&g * self.rho)?)? + &lambda)?.add(&u.broadcast_matmul(&self.rho_gram)?)?;
-        let next = batch
-            .beta
-            .add(&rhs.broadcast_matmul(&self.k11_diff)?)?
-            .broadcast_add(&rhs.mean_keepdim(2)?.broadcast_matmul(&self.mean_minus_diff_t)?)?;
+        let rhs = ((&batch.target + (&g * ops.rho)?)? + &lambda)?.add(&u.broadcast_matmul(&ops.rho_gram)?)?;
+        let next = batch.beta[level]
+            .add(&rhs.broadcast_matmul(&ops.k11_diff)?)?
+            .broadcast_add(&rhs.mean_keepdim(2)?.broadcast_matmul(&ops.mean_minus_diff_t)?)?;
         Ok((next, lambda))
     }
 
@@ -190,8 +208,8 @@ impl UnrolledSf {
     ) -> Result<(Tensor, Tensor, Tensor)> {
         let (mut xi, mut lambda) = (xi.clone(), lambda.clone());
         let mut residuals = Vec::with_capacity(iterations);
-        for _ in 0..iterations {
-            let (x, l) = self.step(&xi, &lambda, batch)?;
+        for l in 0..iterations {
+            let (x, l) = self.step(l, &xi, &lambda, batch)?;
             let r = ((&x - &xi)?.sqr()?.flatten_from(1)?.sum(1)? + (&l - &lambda)?.sqr()?.flatten_from(1)?.sum(1)?)?;
             residuals.push(r);
             (xi, lambda) = (x, l);
@@ -222,7 +240,12 @@ mod tests {
 
     fn unrolled_equals_planner(objective: Objective) {
         let team = Team::default_for(Dim::Two, 6);
-        let engine = Engine::new(&team, 2, objective, AmSettings::safety_filter()).unwrap();
+        // A penalty doubling every other iteration: the 5 iterations below
+        // run at three levels.
+        let mut settings = AmSettings::safety_filter();
+        settings.rho.every = 2;
+        let engine = Engine::new(&team, 2, objective, settings).unwrap();
+        assert!(engine.rho_levels().len() >= 3);
         let sf = UnrolledSf::new(&engine, DType::F64).unwrap();
         let reference = SmoothReference::new(&team).unwrap();
         let mut rng = ChaCha8Rng::seed_from_u64(3);
@@ -257,8 +280,9 @@ mod tests {
             let mut s = state.clone();
             let mut stepper = engine.stepper();
             let mut moved = false;
-            for _ in 0..5 {
-                moved |= stepper.step(p, &mut s, 0).primal > 0.0;
+            for l in 0..5 {
+                let level = settings.rho.level_at(l, engine.rho_levels().len());
+                moved |= stepper.step(p, &mut s, level).primal > 0.0;
             }
             assert!(moved, "the test must exercise the projection");
             stepped.push(s);
