@@ -57,8 +57,11 @@ enum Command {
 }
 
 fn main() -> Result<()> {
-    flowopt_models::runtime::configure();
     let cli = Cli::parse();
+    // Planning runs candle on one thread: its products are small, and the
+    // safety filter has the cores (docs/LEARNED.md). Training keeps
+    // candle's default (40 flow steps on data/n8: 21.0 s, 21.3 s at one).
+    flowopt_models::runtime::configure(if matches!(cli.command, Command::Train(_)) { None } else { Some(1) });
     // Logs: RUST_LOG, or warnings plus the daemon's and simulator's
     // progress. The trace, if asked for, records every span at INFO.
     let filter = EnvFilter::try_from_default_env()

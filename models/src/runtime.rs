@@ -1,15 +1,29 @@
 //! Process settings for fast CPU tensor code.
 
-/// Keeps large temporaries in the heap instead of fresh mappings: candle
-/// allocates every op's output, and glibc's default thresholds return
-/// buffers above 128 KiB to the kernel, so each op page-faults them back
-/// (measured: a training step 27 ms -> 14 ms). Call once, early.
-pub fn configure() {
+/// Call once, early in `main`, before any other thread starts.
+///
+/// - Keeps large temporaries in the heap instead of fresh mappings: candle
+///   allocates every op's output, and glibc's default thresholds return
+///   buffers above 128 KiB to the kernel, so each op page-faults them back
+///   (measured: a training step 27 ms -> 14 ms).
+/// - Settles candle's thread count at `tensor_threads` (`None`: candle's
+///   default, the physical cores), unless `RAYON_NUM_THREADS` is set.
+///   Unsettled, candle parses `/proc/cpuinfo` on every CPU matmul; and the
+///   planner's small products lose more to the threads' synchronisation
+///   than they gain (measured, docs/LEARNED.md: 16-robot flow sampling
+///   41 ms with the count unsettled, 33 ms settled at 2 threads, 23 ms at 1).
+pub fn configure(tensor_threads: Option<usize>) {
     // SAFETY: mallopt only adjusts allocator thresholds; it is called before
     // any thread of ours allocates concurrently.
     unsafe {
         libc::mallopt(libc::M_MMAP_THRESHOLD, 256 << 20);
         libc::mallopt(libc::M_TRIM_THRESHOLD, 512 << 20);
+    }
+    if std::env::var_os("RAYON_NUM_THREADS").is_none() {
+        let threads = tensor_threads.unwrap_or_else(candle_core::utils::get_num_threads).max(1);
+        // SAFETY: called before any other thread exists (see above), so
+        // nothing reads the environment concurrently.
+        unsafe { std::env::set_var("RAYON_NUM_THREADS", threads.to_string()) };
     }
 }
 
