@@ -61,7 +61,9 @@ fn main() -> Result<()> {
     // Planning runs candle on one thread: its products are small, and the
     // safety filter has the cores (docs/LEARNED.md). Training keeps
     // candle's default (40 flow steps on data/n8: 21.0 s, 21.3 s at one).
-    flowopt_models::runtime::configure(if matches!(cli.command, Command::Train(_)) { None } else { Some(1) });
+    let tensor_threads = if matches!(cli.command, Command::Train(_)) { None } else { Some(1) };
+    // SAFETY: only the argument parsing has run; no other thread exists yet.
+    unsafe { flowopt_models::runtime::configure(tensor_threads) };
     // Logs: RUST_LOG, or warnings plus the daemon's and simulator's
     // progress. The trace, if asked for, records every span at INFO.
     let filter = EnvFilter::try_from_default_env()

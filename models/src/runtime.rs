@@ -12,7 +12,10 @@
 ///   planner's small products lose more to the threads' synchronisation
 ///   than they gain (measured, docs/LEARNED.md: 16-robot flow sampling
 ///   41 ms with the count unsettled, 33 ms settled at 2 threads, 23 ms at 1).
-pub fn configure(tensor_threads: Option<usize>) {
+///
+/// # Safety
+/// No other thread may exist yet: the call writes the process environment.
+pub unsafe fn configure(tensor_threads: Option<usize>) {
     // SAFETY: mallopt only adjusts allocator thresholds; it is called before
     // any thread of ours allocates concurrently.
     unsafe {
@@ -21,8 +24,8 @@ pub fn configure(tensor_threads: Option<usize>) {
     }
     if std::env::var_os("RAYON_NUM_THREADS").is_none() {
         let threads = tensor_threads.unwrap_or_else(candle_core::utils::get_num_threads).max(1);
-        // SAFETY: called before any other thread exists (see above), so
-        // nothing reads the environment concurrently.
+        // SAFETY: the caller guarantees no other thread exists, so nothing
+        // reads the environment concurrently.
         unsafe { std::env::set_var("RAYON_NUM_THREADS", threads.to_string()) };
     }
 }

@@ -413,7 +413,6 @@ pub struct InitData {
     pub flow_steps: usize,
 }
 
-/// One bucket of initialiser training data.
 /// The SF side of one bucket of initialiser training data (its tensors,
 /// with the flow samples as tokens, are a [`Split`]).
 struct InitBucket {

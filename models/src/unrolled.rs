@@ -208,8 +208,8 @@ impl UnrolledSf {
     ) -> Result<(Tensor, Tensor, Tensor)> {
         let (mut xi, mut lambda) = (xi.clone(), lambda.clone());
         let mut residuals = Vec::with_capacity(iterations);
-        for l in 0..iterations {
-            let (x, l) = self.step(l, &xi, &lambda, batch)?;
+        for iteration in 0..iterations {
+            let (x, l) = self.step(iteration, &xi, &lambda, batch)?;
             let r = ((&x - &xi)?.sqr()?.flatten_from(1)?.sum(1)? + (&l - &lambda)?.sqr()?.flatten_from(1)?.sum(1)?)?;
             residuals.push(r);
             (xi, lambda) = (x, l);
