@@ -70,15 +70,16 @@ impl UnrolledSf {
     /// The operators of `engine` (a safety filter) at every level of its
     /// penalty schedule, in `dtype`.
     pub fn new(engine: &Engine, dtype: DType) -> Result<Self> {
-        let ops = engine.step_operators(0);
+        let per_level: Vec<_> = (0..engine.rho_levels().len()).map(|l| engine.step_operators(l)).collect();
+        let first = &per_level[0];
         let team = engine.team();
         let (dim, n) = (team.dim.axes(), team.robots);
         let nx = engine.basis().n_xi();
-        let k = ops.taus.len();
-        let p = matrix(&ops.p, k, nx, dtype)?;
-        let levels = (0..engine.rho_levels().len())
-            .map(|l| {
-                let ops = engine.step_operators(l);
+        let k = first.taus.len();
+        let p = matrix(&first.p, k, nx, dtype)?;
+        let levels = per_level
+            .iter()
+            .map(|ops| {
                 Ok(LevelOps {
                     rho: ops.rho,
                     rho_gram: matrix(&ops.rho_gram, nx, nx, dtype)?,
@@ -95,7 +96,7 @@ impl UnrolledSf {
         Ok(Self {
             levels,
             schedule: engine.settings().rho,
-            modes: ops.modes,
+            modes: first.modes,
             pt: p.t()?.contiguous()?,
             p,
             cost: matrix(engine.cost(), nx, nx, dtype)?,
@@ -241,9 +242,11 @@ mod tests {
     fn unrolled_equals_planner(objective: Objective) {
         let team = Team::default_for(Dim::Two, 6);
         // A penalty doubling every other iteration: the 5 iterations below
-        // run at three levels.
-        let mut settings = AmSettings::safety_filter();
+        // run at three levels. The planner runs them without stopping
+        // (a tolerance never met, a cap of 5), with its own choice of level.
+        let mut settings = AmSettings::safety_filter().residual_study(-1.0);
         settings.rho.every = 2;
+        settings.max_iterations = 5;
         let engine = Engine::new(&team, 2, objective, settings).unwrap();
         assert!(engine.rho_levels().len() >= 3);
         let sf = UnrolledSf::new(&engine, DType::F64).unwrap();
@@ -277,15 +280,10 @@ mod tests {
         assert_eq!(residuals.dims(), &[5, 2]);
         let mut stepped = Vec::new();
         for (state, p) in states.iter().zip(&prepared) {
-            let mut s = state.clone();
-            let mut stepper = engine.stepper();
-            let mut moved = false;
-            for l in 0..5 {
-                let level = settings.rho.level_at(l, engine.rho_levels().len());
-                moved |= stepper.step(p, &mut s, level).primal > 0.0;
-            }
-            assert!(moved, "the test must exercise the projection");
-            stepped.push(s);
+            let run = engine.run(p, state.clone());
+            assert_eq!(run.iterations, 5);
+            assert!(run.history.iter().any(|r| r.primal > 0.0), "the test must exercise the projection");
+            stepped.push(run.state);
         }
         let ours_xi = xi_l.flatten_all().unwrap().to_vec1::<f64>().unwrap();
         let ours_lambda = lambda_l.flatten_all().unwrap().to_vec1::<f64>().unwrap();

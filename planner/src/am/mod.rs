@@ -345,8 +345,7 @@ fn set_curve(xi: &mut [f64], curve: &[f64], n: usize, nx: usize, i: usize) {
 }
 
 /// Runs single AM iterations with buffers allocated once: the unit the
-/// per-iteration benchmarks time and the learned initialiser's unrolled
-/// solver is checked against.
+/// per-iteration benchmarks time.
 pub struct Stepper<'e> {
     engine: &'e Engine,
     projection: Projection,
