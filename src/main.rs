@@ -2,24 +2,17 @@
 //!
 //! One binary, one subcommand per job; `flowopt --help` lists them.
 
-mod bench;
-mod bench_ipc;
-mod daemon_args;
-mod datagen;
-mod demo;
-mod eval;
-mod instances;
-mod methods;
-mod serve;
-mod sim;
-mod solve;
-mod stats;
-mod train;
+mod learn;
+mod live;
+mod offline;
 
 use std::path::PathBuf;
 
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
+use learn::{datagen, train};
+use live::{bench_ipc, demo, serve, sim};
+use offline::{bench, eval, solve};
 use tracing_subscriber::filter::{EnvFilter, LevelFilter};
 use tracing_subscriber::prelude::*;
 

@@ -123,21 +123,6 @@ fn problem(seed: u64) -> Problem {
     RandomScenario::new(Team::default_for(Dim::Two, ROBOTS)).with_obstacles(1).generate(seed).unwrap()
 }
 
-fn fill(s: &mut StateSnapshot, p: &Problem) {
-    s.dim = 2;
-    s.robots = ROBOTS as u32;
-    for (i, r) in s.robot.iter_mut().take(ROBOTS).enumerate() {
-        r.position = p.starts[i].position.into();
-        r.velocity = p.starts[i].velocity.into();
-        r.goal = p.goals[i].into();
-    }
-    s.obstacles = 1;
-    let o = &p.obstacles[0];
-    s.obstacle[0].position = o.position.into();
-    s.obstacle[0].radius = o.shape.radius;
-    s.obstacle[0].half_height = o.shape.half_height;
-}
-
 impl Controller {
     /// Publishes a snapshot of `p` changed by `edit` and waits for the
     /// plan answering it, re-publishing while the daemon starts.
@@ -147,7 +132,7 @@ impl Controller {
             let sequence = self
                 .states
                 .publish_with(|s| {
-                    fill(s, p);
+                    s.write_problem(p).unwrap();
                     edit(s);
                 })
                 .unwrap();

@@ -40,8 +40,22 @@ pub mod clock;
 pub mod messages;
 pub mod ports;
 
+use thiserror::Error;
+
 pub use messages::{
-    JointTrajectory, MAX_COEFFS, MAX_OBSTACLES, MAX_ROBOTS, ObstacleState, PlanStatus, Reason, RobotState,
-    StageTimings, StateSnapshot, TEAM_NAME_LEN, WIRE_VERSION,
+    JointTrajectory, MAX_COEFFS, MAX_OBSTACLES, MAX_ROBOTS, MessageError, ObstacleState, PlanStatus, Reason,
+    RobotState, StageTimings, StateSnapshot, TEAM_NAME_LEN, WIRE_VERSION,
 };
-pub use ports::{ClientError, Endpoint, PlanPublisher, PlanSubscriber, StatePublisher, StateSubscriber, TeamChannel};
+pub use ports::{Endpoint, PlanPublisher, PlanSubscriber, PortError, StatePublisher, StateSubscriber, TeamChannel};
+
+/// Either of the library's errors, for a controller that opens ports and
+/// reads messages in one function.
+#[derive(Debug, Error)]
+pub enum ClientError {
+    /// Opening or using a port failed.
+    #[error(transparent)]
+    Port(#[from] PortError),
+    /// Writing or reading a message failed.
+    #[error(transparent)]
+    Message(#[from] MessageError),
+}

@@ -9,10 +9,9 @@
 //! before the caller fills it.
 
 use flowopt_planner::plan::{InstantRows, JointPlan, Kinematics};
-use flowopt_planner::problem::{Dim, Team};
+use flowopt_planner::problem::{Dim, Problem, Team};
 use iceoryx2::prelude::ZeroCopySend;
-
-use crate::ports::ClientError;
+use thiserror::Error;
 
 /// Robots per team a message can carry.
 pub const MAX_ROBOTS: usize = 64;
@@ -24,6 +23,40 @@ pub const MAX_COEFFS: usize = 16;
 pub const TEAM_NAME_LEN: usize = 32;
 /// Layout version written into every message; bumped on any layout change.
 pub const WIRE_VERSION: u32 = 1;
+
+/// Why a message could not be written or read.
+#[derive(Debug, Clone, PartialEq, Error)]
+pub enum MessageError {
+    /// A team name that does not fit a message.
+    #[error("MessageError::TeamName: the team name {0:?} must be 1-32 bytes of UTF-8 without '/' or NUL")]
+    TeamName(String),
+    /// Sampling a message that carries no plan.
+    #[error("MessageError::NoPlan: the message carries no plan (status {0:?})")]
+    NoPlan(PlanStatus),
+    /// A plan message with an impossible shape.
+    #[error("MessageError::Shape: the plan message has an invalid {0}")]
+    Shape(&'static str),
+    /// Sampling a robot the plan does not have.
+    #[error("MessageError::RobotOutOfRange: robot {robot} out of range: the plan has {robots}")]
+    RobotOutOfRange {
+        /// Requested robot.
+        robot: usize,
+        /// Robots in the plan.
+        robots: usize,
+    },
+    /// A plan or problem larger than the message capacity.
+    #[error(
+        "MessageError::Capacity: {robots} robots, {obstacles} obstacles and {coefficients} coefficients per axis exceed the message capacity"
+    )]
+    Capacity {
+        /// Robots.
+        robots: usize,
+        /// Obstacles (0 for a plan).
+        obstacles: usize,
+        /// Coefficients per robot and axis (0 for a snapshot).
+        coefficients: usize,
+    },
+}
 
 /// One robot's measured state and goal.
 #[repr(C)]
@@ -218,15 +251,15 @@ pub struct JointTrajectory {
 
 /// Checks that `name` can name a team: 1 to [`TEAM_NAME_LEN`] bytes, no
 /// `/` (it is a segment of the service names) and no NUL (the padding).
-pub fn check_team_name(name: &str) -> Result<(), ClientError> {
+pub fn check_team_name(name: &str) -> Result<(), MessageError> {
     if name.is_empty() || name.len() > TEAM_NAME_LEN || name.contains(['/', '\0']) {
-        return Err(ClientError::TeamName(name.to_string()));
+        return Err(MessageError::TeamName(name.to_string()));
     }
     Ok(())
 }
 
 /// Writes `name` NUL-padded into `out`.
-fn write_name(out: &mut [u8; TEAM_NAME_LEN], name: &str) -> Result<(), ClientError> {
+fn write_name(out: &mut [u8; TEAM_NAME_LEN], name: &str) -> Result<(), MessageError> {
     check_team_name(name)?;
     *out = [0; TEAM_NAME_LEN];
     out[..name.len()].copy_from_slice(name.as_bytes());
@@ -234,9 +267,9 @@ fn write_name(out: &mut [u8; TEAM_NAME_LEN], name: &str) -> Result<(), ClientErr
 }
 
 /// Reads a NUL-padded name.
-fn read_name(bytes: &[u8; TEAM_NAME_LEN]) -> Result<&str, ClientError> {
+fn read_name(bytes: &[u8; TEAM_NAME_LEN]) -> Result<&str, MessageError> {
     let end = bytes.iter().position(|&b| b == 0).unwrap_or(TEAM_NAME_LEN);
-    std::str::from_utf8(&bytes[..end]).map_err(|_| ClientError::TeamName(String::from_utf8_lossy(bytes).into()))
+    std::str::from_utf8(&bytes[..end]).map_err(|_| MessageError::TeamName(String::from_utf8_lossy(bytes).into()))
 }
 
 impl StateSnapshot {
@@ -256,13 +289,38 @@ impl StateSnapshot {
     }
 
     /// Sets the team name.
-    pub fn set_team(&mut self, name: &str) -> Result<(), ClientError> {
+    pub fn set_team(&mut self, name: &str) -> Result<(), MessageError> {
         write_name(&mut self.team, name)
     }
 
     /// The team name.
-    pub fn team_name(&self) -> Result<&str, ClientError> {
+    pub fn team_name(&self) -> Result<&str, MessageError> {
         read_name(&self.team)
+    }
+
+    /// Writes `problem`'s shape, start states (position and velocity; the
+    /// wire carries no acceleration), goals and obstacles. The team name,
+    /// sequence and timestamp are the publisher's.
+    pub fn write_problem(&mut self, problem: &Problem) -> Result<(), MessageError> {
+        let (robots, obstacles) = (problem.robots(), problem.obstacles.len());
+        if robots > MAX_ROBOTS || obstacles > MAX_OBSTACLES {
+            return Err(MessageError::Capacity { robots, obstacles, coefficients: 0 });
+        }
+        self.dim = problem.team.dim.axes() as u32;
+        self.robots = robots as u32;
+        self.obstacles = obstacles as u32;
+        for ((r, s), g) in self.robot.iter_mut().zip(&problem.starts).zip(&problem.goals) {
+            r.position = s.position.into();
+            r.velocity = s.velocity.into();
+            r.goal = (*g).into();
+        }
+        for (o, m) in self.obstacle.iter_mut().zip(&problem.obstacles) {
+            o.position = m.position.into();
+            o.velocity = m.velocity.into();
+            o.radius = m.shape.radius;
+            o.half_height = m.shape.half_height;
+        }
+        Ok(())
     }
 }
 
@@ -307,12 +365,12 @@ impl JointTrajectory {
     }
 
     /// Sets the team name.
-    pub fn set_team(&mut self, name: &str) -> Result<(), ClientError> {
+    pub fn set_team(&mut self, name: &str) -> Result<(), MessageError> {
         write_name(&mut self.team, name)
     }
 
     /// The team name.
-    pub fn team_name(&self) -> Result<&str, ClientError> {
+    pub fn team_name(&self) -> Result<&str, MessageError> {
         read_name(&self.team)
     }
 
@@ -324,10 +382,10 @@ impl JointTrajectory {
     }
 
     /// Writes `plan`'s shape and coefficients.
-    pub fn write_plan(&mut self, plan: &JointPlan) -> Result<(), ClientError> {
+    pub fn write_plan(&mut self, plan: &JointPlan) -> Result<(), MessageError> {
         let nx = plan.degree + 1;
         if plan.robots > MAX_ROBOTS || nx > MAX_COEFFS {
-            return Err(ClientError::Capacity { robots: plan.robots, coefficients: nx });
+            return Err(MessageError::Capacity { robots: plan.robots, obstacles: 0, coefficients: nx });
         }
         self.dim = plan.dim.axes() as u32;
         self.robots = plan.robots as u32;
@@ -346,7 +404,7 @@ impl JointTrajectory {
     }
 
     /// The plan this message carries, checked for shape.
-    pub fn plan(&self) -> Result<JointPlan, ClientError> {
+    pub fn plan(&self) -> Result<JointPlan, MessageError> {
         let (dim, robots, nx) = self.shape()?;
         let mut coeffs = Vec::with_capacity(dim.axes() * robots * nx);
         for a in 0..dim.axes() {
@@ -360,16 +418,16 @@ impl JointTrajectory {
     /// Every robot's position, velocity and acceleration `t` seconds after
     /// the plan's origin (clamped to `[0, T]`: before it the start, after
     /// it the goal at rest).
-    pub fn sample(&self, t: f64) -> Result<Vec<Kinematics>, ClientError> {
+    pub fn sample(&self, t: f64) -> Result<Vec<Kinematics>, MessageError> {
         Ok(self.plan()?.at(t))
     }
 
     /// One robot's kinematics `t` seconds after the plan's origin (clamped
     /// to `[0, T]`), without building the whole plan.
-    pub fn sample_robot(&self, robot: usize, t: f64) -> Result<Kinematics, ClientError> {
+    pub fn sample_robot(&self, robot: usize, t: f64) -> Result<Kinematics, MessageError> {
         let (dim, robots, nx) = self.shape()?;
         if robot >= robots {
-            return Err(ClientError::RobotOutOfRange { robot, robots });
+            return Err(MessageError::RobotOutOfRange { robot, robots });
         }
         let rows = InstantRows::new(nx - 1, self.horizon, t);
         Ok(rows.kinematics(dim.axes(), |a| &self.coeffs[robot][a][..nx]))
@@ -380,21 +438,21 @@ impl JointTrajectory {
         self.shape().is_ok_and(|(d, n, nx)| d == team.dim && n == team.robots && nx == team.degree + 1)
     }
 
-    fn shape(&self) -> Result<(Dim, usize, usize), ClientError> {
+    fn shape(&self) -> Result<(Dim, usize, usize), MessageError> {
         if !self.status.has_plan() {
-            return Err(ClientError::NoPlan(self.status));
+            return Err(MessageError::NoPlan(self.status));
         }
-        let dim = Dim::try_from(self.dim as u8).map_err(|_| ClientError::Shape("dim"))?;
+        let dim = Dim::try_from(self.dim as u8).map_err(|_| MessageError::Shape("dim"))?;
         let robots = self.robots as usize;
         let nx = self.degree as usize + 1;
         if robots == 0 || robots > MAX_ROBOTS {
-            return Err(ClientError::Shape("robots"));
+            return Err(MessageError::Shape("robots"));
         }
         if self.degree == 0 || nx > MAX_COEFFS {
-            return Err(ClientError::Shape("degree"));
+            return Err(MessageError::Shape("degree"));
         }
         if !(self.horizon.is_finite() && self.horizon > 0.0) {
-            return Err(ClientError::Shape("horizon"));
+            return Err(MessageError::Shape("horizon"));
         }
         Ok((dim, robots, nx))
     }
@@ -475,22 +533,22 @@ mod tests {
                 assert!((one.acceleration - k.acceleration).norm() < 1e-12);
             }
         }
-        assert!(matches!(msg.sample_robot(3, 0.0), Err(ClientError::RobotOutOfRange { robot: 3, robots: 3 })));
+        assert!(matches!(msg.sample_robot(3, 0.0), Err(MessageError::RobotOutOfRange { robot: 3, robots: 3 })));
     }
 
     #[test]
     fn malformed_plan_messages_give_typed_errors() {
         let mut msg = JointTrajectory::new();
-        assert!(matches!(msg.sample(0.0), Err(ClientError::NoPlan(PlanStatus::NoPlan))));
+        assert!(matches!(msg.sample(0.0), Err(MessageError::NoPlan(PlanStatus::NoPlan))));
         msg.status = PlanStatus::Ok;
         msg.dim = 4;
-        assert!(matches!(msg.sample(0.0), Err(ClientError::Shape("dim"))));
+        assert!(matches!(msg.sample(0.0), Err(MessageError::Shape("dim"))));
         msg.dim = 2;
         msg.robots = MAX_ROBOTS as u32 + 1;
-        assert!(matches!(msg.sample(0.0), Err(ClientError::Shape("robots"))));
+        assert!(matches!(msg.sample(0.0), Err(MessageError::Shape("robots"))));
         msg.robots = 2;
         msg.degree = MAX_COEFFS as u32;
-        assert!(matches!(msg.sample(0.0), Err(ClientError::Shape("degree"))));
+        assert!(matches!(msg.sample(0.0), Err(MessageError::Shape("degree"))));
     }
 
     #[test]

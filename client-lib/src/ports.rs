@@ -12,16 +12,20 @@
 use std::fmt::Debug;
 use std::time::{Duration, Instant};
 
-use iceoryx2::port::listener::Listener;
-use iceoryx2::port::notifier::Notifier;
-use iceoryx2::port::publisher::Publisher;
-use iceoryx2::port::subscriber::Subscriber;
+use iceoryx2::node::{NodeCreationFailure, NodeListFailure};
+use iceoryx2::port::listener::{Listener, ListenerCreateError, ListenerWaitError};
+use iceoryx2::port::notifier::{Notifier, NotifierCreateError, NotifierNotifyError};
+use iceoryx2::port::publisher::{Publisher, PublisherCreateError};
+use iceoryx2::port::subscriber::{Subscriber, SubscriberCreateError};
+use iceoryx2::port::{LoanError, ReceiveError, SendError};
 use iceoryx2::prelude::*;
 use iceoryx2::sample::Sample;
+use iceoryx2::service::builder::event::EventOpenOrCreateError;
+use iceoryx2::service::builder::publish_subscribe::PublishSubscribeOpenOrCreateError;
 use thiserror::Error;
 
 use crate::clock::monotonic_ns;
-use crate::messages::{JointTrajectory, PlanStatus, StateSnapshot, WIRE_VERSION};
+use crate::messages::{JointTrajectory, MessageError, StateSnapshot, WIRE_VERSION, check_team_name};
 
 /// Publishers a service admits (two, so a restarted publisher can join
 /// before its dead predecessor is cleaned up).
@@ -31,49 +35,70 @@ const MAX_SUBSCRIBERS: usize = 16;
 /// Nodes that may open a service.
 const MAX_NODES: usize = 32;
 
-/// Errors of the client library.
+/// Why a port could not be opened or used. iceoryx2's own error is kept as
+/// the [`std::error::Error::source`], so a caller can tell, say, an
+/// incompatible service from a failed loan.
 #[derive(Debug, Error)]
-pub enum ClientError {
-    /// An iceoryx2 call failed.
-    #[error("iceoryx2 {op} failed: {detail}")]
-    Ipc {
-        /// What was being done.
-        op: &'static str,
-        /// iceoryx2's error.
-        detail: String,
-    },
-    /// A prefix or team name that does not make a valid service name.
-    #[error("invalid service name {0:?}")]
+pub enum PortError {
+    /// A prefix, team or node name that does not make a valid iceoryx2 name.
+    #[error("PortError::ServiceName: invalid service or node name {0:?}")]
     ServiceName(String),
     /// A team name that does not fit a message.
-    #[error("team name {0:?} must be 1-32 bytes of UTF-8 without '/' or NUL")]
-    TeamName(String),
-    /// Sampling a message that carries no plan.
-    #[error("the message carries no plan (status {0:?})")]
-    NoPlan(PlanStatus),
-    /// A plan message with an impossible shape.
-    #[error("the plan message has an invalid {0}")]
-    Shape(&'static str),
-    /// Sampling a robot the plan does not have.
-    #[error("robot {robot} out of range: the plan has {robots}")]
-    RobotOutOfRange {
-        /// Requested robot.
-        robot: usize,
-        /// Robots in the plan.
-        robots: usize,
+    #[error("PortError::Team: {0}")]
+    Team(#[from] MessageError),
+    /// The iceoryx2 node could not be created.
+    #[error("PortError::Node: cannot create the iceoryx2 node")]
+    Node(#[source] NodeCreationFailure),
+    /// A publish-subscribe service could not be opened (for example one
+    /// created with another payload type or smaller limits).
+    #[error("PortError::Topic: cannot open or create the service {service}")]
+    Topic {
+        /// The service name.
+        service: String,
+        /// iceoryx2's reason.
+        #[source]
+        source: PublishSubscribeOpenOrCreateError,
     },
-    /// A plan larger than the message capacity.
-    #[error("a plan of {robots} robots with {coefficients} coefficients per axis exceeds the message capacity")]
-    Capacity {
-        /// Robots.
-        robots: usize,
-        /// Coefficients per robot and axis.
-        coefficients: usize,
+    /// An event service could not be opened.
+    #[error("PortError::Event: cannot open or create the event service {service}")]
+    Event {
+        /// The service name.
+        service: String,
+        /// iceoryx2's reason.
+        #[source]
+        source: EventOpenOrCreateError,
     },
-}
-
-fn ipc<E: Debug>(op: &'static str) -> impl FnOnce(E) -> ClientError {
-    move |e| ClientError::Ipc { op, detail: format!("{e:?}") }
+    /// A publisher could not be created (for example: the service has its
+    /// maximum of publishers).
+    #[error("PortError::Publisher: cannot create a publisher")]
+    Publisher(#[source] PublisherCreateError),
+    /// A subscriber could not be created.
+    #[error("PortError::Subscriber: cannot create a subscriber")]
+    Subscriber(#[source] SubscriberCreateError),
+    /// A notifier could not be created.
+    #[error("PortError::Notifier: cannot create a notifier")]
+    Notifier(#[source] NotifierCreateError),
+    /// A listener could not be created.
+    #[error("PortError::Listener: cannot create a listener")]
+    Listener(#[source] ListenerCreateError),
+    /// No sample could be loaned for a message.
+    #[error("PortError::Loan: cannot loan a sample")]
+    Loan(#[source] LoanError),
+    /// A message could not be sent.
+    #[error("PortError::Send: cannot send")]
+    Send(#[source] SendError),
+    /// A message could not be received.
+    #[error("PortError::Receive: cannot receive")]
+    Receive(#[source] ReceiveError),
+    /// The wake-up event could not be sent.
+    #[error("PortError::Notify: cannot notify the listeners")]
+    Notify(#[source] NotifierNotifyError),
+    /// Waiting for a wake-up event failed.
+    #[error("PortError::Wait: cannot wait for an event")]
+    Wait(#[source] ListenerWaitError),
+    /// The nodes of the domain could not be listed.
+    #[error("PortError::ListNodes: cannot list the iceoryx2 nodes")]
+    ListNodes(#[source] NodeListFailure),
 }
 
 /// The names of one team's four services.
@@ -89,12 +114,12 @@ pub struct TeamChannel {
 impl TeamChannel {
     /// The services of `team` under `prefix` (`flowopt` in production; a
     /// unique prefix isolates tests and demos).
-    pub fn new(prefix: &str, team: &str) -> Result<Self, ClientError> {
+    pub fn new(prefix: &str, team: &str) -> Result<Self, PortError> {
         let name = |suffix: &str| {
             let s = format!("{prefix}/{team}/{suffix}");
-            ServiceName::new(&s).map_err(|_| ClientError::ServiceName(s))
+            ServiceName::new(&s).map_err(|_| PortError::ServiceName(s))
         };
-        crate::messages::check_team_name(team)?;
+        check_team_name(team)?;
         Ok(Self {
             team: team.to_string(),
             state: name("state")?,
@@ -133,13 +158,13 @@ pub struct Endpoint {
 impl Endpoint {
     /// A node named `name` in the default iceoryx2 domain. Creating it
     /// also removes the resources of dead nodes.
-    pub fn new(name: &str) -> Result<Self, ClientError> {
-        let node_name = NodeName::new(name).map_err(|_| ClientError::ServiceName(name.to_string()))?;
+    pub fn new(name: &str) -> Result<Self, PortError> {
+        let node_name = NodeName::new(name).map_err(|_| PortError::ServiceName(name.to_string()))?;
         let node = NodeBuilder::new()
             .name(&node_name)
             .signal_handling_mode(SignalHandlingMode::Disabled)
             .create::<ipc::Service>()
-            .map_err(ipc("node creation"))?;
+            .map_err(PortError::Node)?;
         Ok(Self { node })
     }
 
@@ -149,7 +174,7 @@ impl Endpoint {
     }
 
     /// For a controller: publishes snapshots of `channel`'s team.
-    pub fn state_publisher(&self, channel: &TeamChannel) -> Result<StatePublisher, ClientError> {
+    pub fn state_publisher(&self, channel: &TeamChannel) -> Result<StatePublisher, PortError> {
         Ok(StatePublisher {
             outlet: self.outlet(&channel.state, &channel.state_ready)?,
             team: channel.team.clone(),
@@ -158,24 +183,24 @@ impl Endpoint {
     }
 
     /// For a controller: receives the newest plan of `channel`'s team.
-    pub fn plan_subscriber(&self, channel: &TeamChannel) -> Result<PlanSubscriber, ClientError> {
+    pub fn plan_subscriber(&self, channel: &TeamChannel) -> Result<PlanSubscriber, PortError> {
         Ok(PlanSubscriber { inlet: self.inlet(&channel.plan, &channel.plan_ready)? })
     }
 
     /// For the daemon: receives the newest snapshot of `channel`'s team.
-    pub fn state_subscriber(&self, channel: &TeamChannel) -> Result<StateSubscriber, ClientError> {
+    pub fn state_subscriber(&self, channel: &TeamChannel) -> Result<StateSubscriber, PortError> {
         Ok(StateSubscriber { inlet: self.inlet(&channel.state, &channel.state_ready)? })
     }
 
     /// For the daemon: publishes plans for `channel`'s team.
-    pub fn plan_publisher(&self, channel: &TeamChannel) -> Result<PlanPublisher, ClientError> {
+    pub fn plan_publisher(&self, channel: &TeamChannel) -> Result<PlanPublisher, PortError> {
         Ok(PlanPublisher { outlet: self.outlet(&channel.plan, &channel.plan_ready)?, team: channel.team.clone() })
     }
 
     fn topic<T: Wire>(
         &self,
         name: &ServiceName,
-    ) -> Result<iceoryx2::service::port_factory::publish_subscribe::PortFactory<ipc::Service, T, ()>, ClientError> {
+    ) -> Result<iceoryx2::service::port_factory::publish_subscribe::PortFactory<ipc::Service, T, ()>, PortError> {
         self.node
             .service_builder(name)
             .publish_subscribe::<T>()
@@ -187,13 +212,13 @@ impl Endpoint {
             .max_subscribers(MAX_SUBSCRIBERS)
             .max_nodes(MAX_NODES)
             .open_or_create()
-            .map_err(ipc("opening a topic"))
+            .map_err(|source| PortError::Topic { service: name.to_string(), source })
     }
 
     fn event(
         &self,
         name: &ServiceName,
-    ) -> Result<iceoryx2::service::port_factory::event::PortFactory<ipc::Service>, ClientError> {
+    ) -> Result<iceoryx2::service::port_factory::event::PortFactory<ipc::Service>, PortError> {
         self.node
             .service_builder(name)
             .event()
@@ -201,25 +226,25 @@ impl Endpoint {
             .max_listeners(MAX_SUBSCRIBERS)
             .max_nodes(MAX_NODES)
             .open_or_create()
-            .map_err(ipc("opening an event service"))
+            .map_err(|source| PortError::Event { service: name.to_string(), source })
     }
 
-    fn outlet<T: Wire>(&self, topic: &ServiceName, ready: &ServiceName) -> Result<Outlet<T>, ClientError> {
+    fn outlet<T: Wire>(&self, topic: &ServiceName, ready: &ServiceName) -> Result<Outlet<T>, PortError> {
         Ok(Outlet {
-            publisher: self.topic::<T>(topic)?.publisher_builder().create().map_err(ipc("creating a publisher"))?,
-            notifier: self.event(ready)?.notifier_builder().create().map_err(ipc("creating a notifier"))?,
+            publisher: self.topic::<T>(topic)?.publisher_builder().create().map_err(PortError::Publisher)?,
+            notifier: self.event(ready)?.notifier_builder().create().map_err(PortError::Notifier)?,
         })
     }
 
-    fn inlet<T: Wire>(&self, topic: &ServiceName, ready: &ServiceName) -> Result<Inlet<T>, ClientError> {
+    fn inlet<T: Wire>(&self, topic: &ServiceName, ready: &ServiceName) -> Result<Inlet<T>, PortError> {
         Ok(Inlet {
             subscriber: self
                 .topic::<T>(topic)?
                 .subscriber_builder()
                 .buffer_size(1)
                 .create()
-                .map_err(ipc("creating a subscriber"))?,
-            listener: self.event(ready)?.listener_builder().create().map_err(ipc("creating a listener"))?,
+                .map_err(PortError::Subscriber)?,
+            listener: self.event(ready)?.listener_builder().create().map_err(PortError::Listener)?,
         })
     }
 }
@@ -237,8 +262,8 @@ struct Outlet<T: Wire> {
 impl<T: Wire> Outlet<T> {
     /// Loans a sample, zeroes it, lets `fill` write it in place, sends it
     /// and wakes the listeners; returns the subscribers reached.
-    fn publish_with(&self, fill: impl FnOnce(&mut T)) -> Result<usize, ClientError> {
-        let mut sample = self.publisher.loan_uninit().map_err(ipc("loan"))?;
+    fn publish_with(&self, fill: impl FnOnce(&mut T)) -> Result<usize, PortError> {
+        let mut sample = self.publisher.loan_uninit().map_err(PortError::Loan)?;
         // SAFETY: `Wire` guarantees that all-zero bytes are a valid `T`, so
         // the payload is initialised after the write.
         let mut sample = unsafe {
@@ -246,8 +271,8 @@ impl<T: Wire> Outlet<T> {
             sample.assume_init()
         };
         fill(sample.payload_mut());
-        let reached = sample.send().map_err(ipc("send"))?;
-        self.notifier.notify().map_err(ipc("notify"))?;
+        let reached = sample.send().map_err(PortError::Send)?;
+        self.notifier.notify().map_err(PortError::Notify)?;
         Ok(reached)
     }
 }
@@ -260,15 +285,15 @@ struct Inlet<T: Wire> {
 }
 
 impl<T: Wire> Inlet<T> {
-    fn latest(&self) -> Result<Option<Received<T>>, ClientError> {
+    fn latest(&self) -> Result<Option<Received<T>>, PortError> {
         let mut latest = None;
-        while let Some(sample) = self.subscriber.receive().map_err(ipc("receive"))? {
+        while let Some(sample) = self.subscriber.receive().map_err(PortError::Receive)? {
             latest = Some(sample);
         }
         Ok(latest)
     }
 
-    fn wait(&self, timeout: Duration) -> Result<Option<Received<T>>, ClientError> {
+    fn wait(&self, timeout: Duration) -> Result<Option<Received<T>>, PortError> {
         let deadline = Instant::now() + timeout;
         loop {
             self.drain_events()?;
@@ -279,12 +304,12 @@ impl<T: Wire> Inlet<T> {
             if left.is_zero() {
                 return Ok(None);
             }
-            self.listener.timed_wait(|_| {}, left).map_err(ipc("wait"))?;
+            self.listener.timed_wait(|_| {}, left).map_err(PortError::Wait)?;
         }
     }
 
-    fn drain_events(&self) -> Result<(), ClientError> {
-        self.listener.try_wait(|_| {}).map_err(ipc("event drain"))?;
+    fn drain_events(&self) -> Result<(), PortError> {
+        self.listener.try_wait(|_| {}).map_err(PortError::Wait)?;
         Ok(())
     }
 }
@@ -303,7 +328,7 @@ impl StatePublisher {
     /// last; starts at 1) and `timestamp_ns` (now): set `dim`, `robots`,
     /// the robot states and the obstacles, and overwrite `timestamp_ns`
     /// with the measurement time if it is earlier. Returns the sequence.
-    pub fn publish_with(&mut self, fill: impl FnOnce(&mut StateSnapshot)) -> Result<u64, ClientError> {
+    pub fn publish_with(&mut self, fill: impl FnOnce(&mut StateSnapshot)) -> Result<u64, PortError> {
         let sequence = self.next_sequence;
         let team = &self.team;
         self.outlet.publish_with(|s| {
@@ -327,12 +352,12 @@ pub struct PlanSubscriber {
 
 impl PlanSubscriber {
     /// The newest plan not yet taken, if any (older ones are dropped).
-    pub fn latest(&self) -> Result<Option<Received<JointTrajectory>>, ClientError> {
+    pub fn latest(&self) -> Result<Option<Received<JointTrajectory>>, PortError> {
         self.inlet.latest()
     }
 
     /// The newest plan not yet taken, waiting up to `timeout` for one.
-    pub fn wait(&self, timeout: Duration) -> Result<Option<Received<JointTrajectory>>, ClientError> {
+    pub fn wait(&self, timeout: Duration) -> Result<Option<Received<JointTrajectory>>, PortError> {
         self.inlet.wait(timeout)
     }
 }
@@ -345,13 +370,13 @@ pub struct StateSubscriber {
 
 impl StateSubscriber {
     /// The newest snapshot not yet taken, if any; clears pending wake-ups.
-    pub fn latest(&self) -> Result<Option<Received<StateSnapshot>>, ClientError> {
+    pub fn latest(&self) -> Result<Option<Received<StateSnapshot>>, PortError> {
         self.inlet.drain_events()?;
         self.inlet.latest()
     }
 
     /// The newest snapshot not yet taken, waiting up to `timeout` for one.
-    pub fn wait(&self, timeout: Duration) -> Result<Option<Received<StateSnapshot>>, ClientError> {
+    pub fn wait(&self, timeout: Duration) -> Result<Option<Received<StateSnapshot>>, PortError> {
         self.inlet.wait(timeout)
     }
 
@@ -372,7 +397,7 @@ impl PlanPublisher {
     /// Publishes a plan written in place by `fill`, which receives it zeroed
     /// apart from `version` and `team`; `published_ns` is stamped after
     /// `fill`. Returns the subscribers reached.
-    pub fn publish_with(&self, fill: impl FnOnce(&mut JointTrajectory)) -> Result<usize, ClientError> {
+    pub fn publish_with(&self, fill: impl FnOnce(&mut JointTrajectory)) -> Result<usize, PortError> {
         let team = &self.team;
         self.outlet.publish_with(|p| {
             p.version = WIRE_VERSION;
@@ -386,7 +411,7 @@ impl PlanPublisher {
 
 /// Removes the resources of dead nodes in the default domain (a crashed
 /// daemon or controller); returns how many were cleaned.
-pub fn cleanup_dead_nodes() -> Result<usize, ClientError> {
+pub fn cleanup_dead_nodes() -> Result<usize, PortError> {
     let mut dead = Vec::new();
     Node::<ipc::Service>::list(Config::global_config(), |state| {
         if let NodeState::Dead(view) = state {
@@ -394,6 +419,6 @@ pub fn cleanup_dead_nodes() -> Result<usize, ClientError> {
         }
         CallbackProgression::Continue
     })
-    .map_err(ipc("listing nodes"))?;
+    .map_err(PortError::ListNodes)?;
     Ok(dead.into_iter().filter(|d| d.clone().try_remove_stale_resources().is_ok()).count())
 }

@@ -8,7 +8,7 @@ use flowopt_client::messages::check_team_name;
 use flowopt_client::{MAX_COEFFS, MAX_OBSTACLES, MAX_ROBOTS};
 use flowopt_models::pipeline::PipelineSettings;
 use flowopt_planner::problem::{Dim, ProblemError, Team};
-use flowopt_planner::scenario::{FileBox, FileShape};
+use flowopt_planner::scenario::{FileBox, FileShape, default_degree, default_horizon, default_samples, file_team};
 
 use serde::Deserialize;
 use thiserror::Error;
@@ -162,15 +162,6 @@ fn default_top_k() -> usize {
     PipelineSettings::default().top_k
 }
 
-fn default_horizon() -> f64 {
-    Team::DEFAULT_HORIZON
-}
-fn default_degree() -> usize {
-    Team::DEFAULT_DEGREE
-}
-fn default_samples() -> usize {
-    Team::DEFAULT_SAMPLES
-}
 fn default_deadline_ms() -> f64 {
     20.0
 }
@@ -182,15 +173,9 @@ impl TeamConfig {
     /// The planner's description of this team.
     pub fn team(&self) -> Result<Team, ConfigError> {
         let bad = |message: String| ConfigError::BadTeam { name: self.name.clone(), message };
-        let team = Team {
-            dim: self.dim,
-            robots: self.robots,
-            robot: self.robot.spheroid(),
-            workspace: self.workspace.workspace(self.dim).map_err(|e| bad(e.to_string()))?,
-            horizon: self.horizon,
-            degree: self.degree,
-            samples: self.samples,
-        };
+        let team =
+            file_team(self.dim, self.robots, &self.robot, &self.workspace, self.horizon, self.degree, self.samples)
+                .map_err(|e| bad(e.to_string()))?;
         team.validate().map_err(|e: ProblemError| bad(e.to_string()))?;
         if self.robots > MAX_ROBOTS || self.degree + 1 > MAX_COEFFS || self.max_obstacles > MAX_OBSTACLES {
             return Err(bad(format!(

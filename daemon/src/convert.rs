@@ -119,17 +119,7 @@ mod tests {
         let p = RandomScenario::new(team.clone()).with_obstacles(1).generate(2).unwrap();
         let mut s = StateSnapshot::new();
         s.set_team("t").unwrap();
-        s.dim = 2;
-        s.robots = 4;
-        for i in 0..4 {
-            s.robot[i].position = p.starts[i].position.into();
-            s.robot[i].goal = p.goals[i].into();
-        }
-        s.obstacles = 1;
-        let o = &p.obstacles[0];
-        s.obstacle[0].position = o.position.into();
-        s.obstacle[0].radius = o.shape.radius;
-        s.obstacle[0].half_height = o.shape.half_height;
+        s.write_problem(&p).unwrap();
         (team, s)
     }
 

@@ -1,41 +1,37 @@
-//! One team's planner: every snapshot is answered from its own measured
-//! state, warm-started from the previous plan when the goals are unchanged
-//! and cold otherwise, within a deadline.
+//! One team's planner: every problem (a validated snapshot) is planned
+//! from its own measured state, warm-started from the previous plan when
+//! the goals are unchanged and cold otherwise, within a deadline. It knows
+//! nothing of the wire: the worker ([`crate::serve()`]) converts snapshots
+//! into problems and writes the replies.
 //!
 //! - **Warm start.** The previous plan, shifted by the time between the two
-//!   snapshots (and held at its goal past its end), is sampled at the K
-//!   instants of the new horizon and fitted to the basis under the new
-//!   boundary conditions (the measured position and velocity, the previous
-//!   plan's acceleration at that time, the goals at rest). The safety filter
-//!   projects the fit; a verified result is the plan.
+//!   snapshots ([`JointPlan::shifted`]), is the safety filter's sample; a
+//!   verified result is the plan.
 //! - **Cold plan.** When the goals or the obstacle count change, there is no
 //!   previous plan, or the filter does not verify within its cap, the
 //!   learned planner ([`flowopt_models::pipeline`], when the team has
 //!   weights) plans from the measured state; if it has none or its plan does
 //!   not verify, the from-scratch optimiser does.
 //! - **Deadline.** Both stop when the deadline passes; the best iterate so far
-//!   is published as [`PlanStatus::DeadlineMissed`] and the next snapshot is
+//!   is returned as [`Verdict::DeadlineMissed`] and the next problem is
 //!   warm-started from it.
 
 use std::time::{Duration, Instant};
 
-use flowopt_client::{JointTrajectory, PlanStatus, Reason, StageTimings, StateSnapshot};
-use flowopt_planner::am::{AmOutcome, AmSettings, Engine, EngineError, Objective, Stop};
-use flowopt_planner::basis::BOUNDARY_ROWS;
+use flowopt_models::pipeline::{LearnedPlanner, PipelineSettings};
+use flowopt_planner::am::{AmOutcome, AmSettings, Engine, EngineError, EngineSet, Objective, Stop};
 use flowopt_planner::metrics::DENSE_FACTOR;
 use flowopt_planner::plan::JointPlan;
 use flowopt_planner::problem::{Problem, Team};
 use flowopt_planner::route::Fitter;
 use nalgebra::Vector3;
+use thiserror::Error;
 use tracing::info_span;
 
-use flowopt_models::pipeline::{FlowOpt, PipelineSettings};
-
 use crate::config::{ConfigError, TeamConfig};
-use crate::convert::{Rejection, problem_from};
 
 /// Why a team's planner cannot be built.
-#[derive(Debug, thiserror::Error)]
+#[derive(Debug, Error)]
 pub enum PreloadError {
     /// The team's configuration is invalid.
     #[error(transparent)]
@@ -46,6 +42,14 @@ pub enum PreloadError {
     /// The learned planner's weights cannot be loaded or do not fit the team.
     #[error("cannot load the learned planner: {0}")]
     Model(#[from] flowopt_models::ModelError),
+}
+
+/// Why a valid problem got no plan.
+#[derive(Debug, Error)]
+pub enum PlanError {
+    /// The optimiser refused the problem.
+    #[error("PlanError::Solver: {0}")]
+    Solver(#[from] EngineError),
 }
 
 /// Iteration cap of the warm-start safety filter (about 10 ms for 16
@@ -64,65 +68,57 @@ pub const TRACKING_BUFFER: f64 = 0.02;
 /// Goals closer than this (m) count as unchanged.
 const SAME_GOAL: f64 = 1e-9;
 
-/// What planning one snapshot produced.
+/// How far a plan got.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Verdict {
+    /// Verified collision-free on the dense grid with the tracking buffer.
+    Verified,
+    /// The solver's best iterate after its iteration cap: not verified.
+    IterationCap,
+    /// The deadline passed: the best iterate so far, not verified.
+    DeadlineMissed,
+}
+
+/// Time spent in each planning stage (zero for a stage not run).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Stages {
+    /// Shifting the previous plan to the new start and fitting it.
+    pub warm_start: Duration,
+    /// Sampling candidates from the flow policy.
+    pub sample: Duration,
+    /// Ranking the candidates.
+    pub rank: Duration,
+    /// The initialisation network.
+    pub init: Duration,
+    /// The safety filter (warm start and learned candidates).
+    pub filter: Duration,
+    /// The from-scratch optimiser.
+    pub optimise: Duration,
+    /// Choosing among refined candidates.
+    pub select: Duration,
+}
+
+/// A plan made for one problem.
 #[derive(Debug, Clone)]
 pub struct Planned {
-    /// The message status.
-    pub status: PlanStatus,
-    /// Why (rejections and failures).
-    pub rejection: Option<Rejection>,
-    /// The plan, for the statuses that carry one.
-    pub plan: Option<JointPlan>,
+    /// The plan, starting at the problem's time origin.
+    pub plan: JointPlan,
+    /// How far it got.
+    pub verdict: Verdict,
     /// Its primal residual (m).
     pub primal: f64,
     /// Its smoothness.
     pub smoothness: f64,
-    /// Iterations spent.
+    /// Iterations spent (failed warm starts included).
     pub iterations: usize,
-    /// Whether the plan came from the warm start.
+    /// Whether it came from the warm start.
     pub warm: bool,
-    /// Stage timings (`queue_us` and `total_us` are filled by the caller).
-    pub timings: StageTimings,
+    /// Candidates the safety filter refined (1 for warm starts and the
+    /// optimiser).
+    pub candidates: usize,
 }
 
-impl Planned {
-    fn rejected(rejection: Rejection, timings: StageTimings) -> Self {
-        Self {
-            status: PlanStatus::RejectedInput,
-            rejection: Some(rejection),
-            plan: None,
-            primal: f64::NAN,
-            smoothness: f64::NAN,
-            iterations: 0,
-            warm: false,
-            timings,
-        }
-    }
-
-    /// Writes everything but the timestamps and sequence into `msg`.
-    pub fn write(&self, msg: &mut JointTrajectory) {
-        msg.status = self.status;
-        if let Some(r) = self.rejection {
-            msg.reason = r.reason;
-            msg.reason_index = r.index;
-        }
-        if let Some(plan) = &self.plan {
-            // The configuration was checked against the message capacity.
-            if msg.write_plan(plan).is_err() {
-                msg.status = PlanStatus::NoPlan;
-                msg.reason = Reason::Solver;
-            }
-        }
-        msg.primal_residual = self.primal;
-        msg.smoothness = self.smoothness;
-        msg.iterations = self.iterations as u32;
-        msg.warm_started = self.warm as u32;
-        msg.candidates = u32::from(self.plan.is_some());
-        msg.timings = self.timings;
-    }
-}
-
-/// The plan the next snapshot is warm-started from.
+/// The plan the next problem is warm-started from.
 #[derive(Debug, Clone)]
 struct Previous {
     plan: JointPlan,
@@ -131,26 +127,23 @@ struct Previous {
     obstacles: usize,
 }
 
-/// A team's learned planner: the networks, the pipeline settings and the
-/// safety filters (one per obstacle count) in the configured metric.
+/// A team's learned planner with its pipeline settings and safety filters.
 #[derive(Debug)]
 struct Learned {
-    model: FlowOpt,
+    planner: LearnedPlanner,
     settings: PipelineSettings,
-    filters: Vec<Engine>,
+    filters: EngineSet,
 }
 
 /// A team's preloaded engines and its planning state.
 #[derive(Debug)]
 pub struct TeamPlanner {
-    name: String,
     team: Team,
-    max_obstacles: usize,
     deadline: Duration,
     /// From-scratch optimisers, one per obstacle count.
-    optimisers: Vec<Engine>,
+    optimisers: EngineSet,
     /// Safety filters, one per obstacle count.
-    filters: Vec<Engine>,
+    filters: EngineSet,
     fitter: Fitter,
     /// The learned planner, if configured.
     learned: Option<Learned>,
@@ -159,46 +152,48 @@ pub struct TeamPlanner {
     previous: Option<Previous>,
 }
 
-/// Microseconds, saturating at `u32::MAX`.
-pub(crate) fn us(d: Duration) -> u32 {
-    d.as_micros().min(u32::MAX as u128) as u32
+/// The engine of `set` for `obstacles` obstacles, which the configuration
+/// admitted and the preload built.
+fn preloaded(set: &EngineSet, obstacles: usize) -> Result<&Engine, EngineError> {
+    set.get(obstacles).ok_or_else(|| EngineError::ShapeMismatch {
+        expected: "at most the configured obstacles".into(),
+        got: format!("{obstacles} obstacles"),
+    })
 }
 
 impl TeamPlanner {
     /// Builds every engine (basis, sample grids, KKT factorisations) the
-    /// team can need, so that no snapshot waits for one.
+    /// team can need, so that no problem waits for one.
     pub fn preload(config: &TeamConfig) -> Result<Self, PreloadError> {
         let team = config.team()?;
-        let engines = |objective: Objective, settings: AmSettings| {
-            (0..=config.max_obstacles)
-                .map(|m| Engine::new(&team, m, objective, settings))
-                .collect::<Result<Vec<_>, _>>()
-        };
         let buffered = |s: AmSettings| AmSettings { verify_margin: TRACKING_BUFFER, verify_skip: DENSE_FACTOR, ..s };
-        let optimisers = engines(Objective::smoothness(), buffered(AmSettings::optimiser()))?;
+        let optimisers = EngineSet::preloaded(
+            &team,
+            Objective::smoothness(),
+            buffered(AmSettings::optimiser()),
+            config.max_obstacles,
+        )?;
         let filter_settings = buffered(AmSettings { max_iterations: WARM_ITERATIONS, ..AmSettings::safety_filter() });
-        let filters = engines(Objective::Projection, filter_settings)?;
-        let fitter = Fitter::new(optimisers[0].basis()).map_err(EngineError::Kkt)?;
+        let filters = EngineSet::preloaded(&team, Objective::Projection, filter_settings, config.max_obstacles)?;
+        let basis = team.basis().map_err(|e| EngineError::Problem(e.into()))?;
+        let fitter = Fitter::new(&basis).map_err(EngineError::Kkt)?;
         let learned = match &config.learned {
             Some(l) => {
-                let model = FlowOpt::load(&l.flow, l.init.as_deref())?;
-                model.check(&team)?;
+                let planner = LearnedPlanner::load(&l.flow, l.init.as_deref(), l.sf_smoothing)?;
+                let filters = planner.filters(&team, filter_settings, config.max_obstacles)?;
                 let settings = PipelineSettings {
                     candidates: l.candidates,
                     steps: l.flow_steps,
                     top_k: l.top_k,
-                    use_init: model.has_init(),
+                    use_init: planner.model().has_init(),
                     ..PipelineSettings::default()
                 };
-                let filters = engines(Objective::filter(l.sf_smoothing), filter_settings)?;
-                Some(Learned { model, settings, filters })
+                Some(Learned { planner, settings, filters })
             }
             None => None,
         };
         Ok(Self {
-            name: config.name.clone(),
             team,
-            max_obstacles: config.max_obstacles,
             deadline: Duration::from_secs_f64(config.deadline_ms * 1e-3),
             optimisers,
             filters,
@@ -214,47 +209,46 @@ impl TeamPlanner {
         &self.team
     }
 
+    /// The time a plan may take from the arrival of its snapshot.
+    pub fn deadline(&self) -> Duration {
+        self.deadline
+    }
+
     /// The last plan made, if any, with its time origin (ns).
     pub fn last_plan(&self) -> Option<(&JointPlan, u64)> {
         self.previous.as_ref().map(|p| (&p.plan, p.origin_ns))
     }
 
-    /// Plans for `snapshot`, which arrived at `received`; the deadline runs
-    /// from then.
-    pub fn plan(&mut self, snapshot: &StateSnapshot, received: Instant) -> Planned {
-        let deadline = received + self.deadline;
-        let mut timings = StageTimings::default();
-        let t0 = Instant::now();
-        let problem = {
-            let _span = info_span!("validate").entered();
-            problem_from(snapshot, &self.team, &self.name, self.max_obstacles)
-        };
-        timings.validate_us = us(t0.elapsed());
-        let mut problem = match problem {
-            Ok(p) => p,
-            Err(rejection) => return Planned::rejected(rejection, timings),
-        };
+    /// Plans `problem` (validated, of this team), measured at `origin_ns`,
+    /// stopping at `deadline`; records the stages' times in `stages`.
+    pub fn plan(
+        &mut self,
+        mut problem: Problem,
+        origin_ns: u64,
+        deadline: Instant,
+        stages: &mut Stages,
+    ) -> Result<Planned, PlanError> {
         let obstacles = problem.obstacles.len();
-
         let mut iterations = 0;
         let mut warm_result = None;
-        if let Some(previous) = self.warm_candidate(&problem, snapshot.timestamp_ns) {
+        if let Some(previous) = self.warm_candidate(&problem, origin_ns) {
             let t = Instant::now();
             let xi = {
                 let _span = info_span!("warm_start").entered();
-                self.shifted(previous, &mut problem, snapshot.timestamp_ns)
+                let dt = (origin_ns - previous.origin_ns) as f64 * 1e-9;
+                previous.plan.shifted(dt, &mut problem, &self.fitter)
             };
-            timings.warm_start_us = us(t.elapsed());
+            stages.warm_start = t.elapsed();
             let t = Instant::now();
             let outcome = {
                 let _span = info_span!("filter").entered();
-                let engine = &self.filters[obstacles];
+                let engine = preloaded(&self.filters, obstacles)?;
                 engine.prepare(&problem, Some(&xi)).map(|prepared| {
                     let state = engine.cold_start(&prepared);
                     engine.run_until(&prepared, state, deadline)
                 })
             };
-            timings.filter_us = us(t.elapsed());
+            stages.filter = t.elapsed();
             if let Ok(outcome) = outcome {
                 // A failed warm start's iterations count; a kept one's are
                 // counted with the plan below.
@@ -266,83 +260,73 @@ impl TeamPlanner {
             }
         }
         let learned = match warm_result {
-            None => self.learned_plan(&problem, deadline, &mut timings),
+            None => self.learned_plan(&problem, deadline, stages),
             Some(_) => None,
         };
-        let (outcome, warm) = match (warm_result, learned) {
-            (Some(o), _) => (o, true),
-            (None, Some(o)) => (o, false),
+        let (outcome, warm, candidates) = match (warm_result, learned) {
+            (Some(o), _) => (o, true, 1),
+            (None, Some((o, refined))) => (o, false, refined),
             (None, None) => {
                 let t = Instant::now();
                 let outcome = {
                     let _span = info_span!("optimise").entered();
-                    let engine = &self.optimisers[obstacles];
+                    let engine = preloaded(&self.optimisers, obstacles)?;
                     engine
                         .prepare(&problem, None)
                         .map(|prepared| engine.solve_prepared_until(&prepared, Some(deadline)))
                 };
-                timings.optimise_us = us(t.elapsed());
-                match outcome {
-                    Ok(o) => (o, false),
-                    Err(_) => {
-                        let mut failed =
-                            Planned::rejected(Rejection { reason: Reason::Solver, index: u32::MAX }, timings);
-                        failed.status = PlanStatus::NoPlan;
-                        return failed;
-                    }
-                }
+                stages.optimise = t.elapsed();
+                (outcome?, false, 1)
             }
         };
         iterations += outcome.iterations;
-        self.finish(outcome, warm, iterations, problem, snapshot.timestamp_ns, timings)
+        Ok(self.finish(outcome, warm, candidates, iterations, problem, origin_ns))
     }
 
     /// A cold plan from the learned pipeline, if the team has one and its
-    /// plan verifies (or the deadline stopped it).
-    fn learned_plan(&mut self, problem: &Problem, deadline: Instant, timings: &mut StageTimings) -> Option<AmOutcome> {
-        let Learned { model, settings, filters } = self.learned.as_ref()?;
+    /// plan verifies (or the deadline stopped it), with the number of
+    /// candidates refined.
+    fn learned_plan(
+        &mut self,
+        problem: &Problem,
+        deadline: Instant,
+        stages: &mut Stages,
+    ) -> Option<(AmOutcome, usize)> {
+        let Learned { planner, settings, filters } = self.learned.as_ref()?;
         self.cold_plans += 1;
         let _span = info_span!("learned").entered();
-        let sf = &filters[problem.obstacles.len()];
-        let out = model.plan(problem, sf, settings, self.cold_plans, Some(deadline)).ok()?;
-        let us_of = |ms: f64| (ms * 1e3).clamp(0.0, u32::MAX as f64) as u32;
-        timings.sample_us = us_of(out.times.sample_ms).max(1);
-        timings.rank_us = us_of(out.times.rank_ms);
-        timings.init_us = us_of(out.times.init_ms);
-        timings.filter_us = timings.filter_us.saturating_add(us_of(out.times.filter_ms));
-        timings.select_us = us_of(out.times.select_ms);
+        let sf = filters.get(problem.obstacles.len())?;
+        let out = planner.model().plan(problem, sf, settings, self.cold_plans, Some(deadline)).ok()?;
+        let duration = |ms: f64| Duration::from_secs_f64((ms * 1e-3).max(0.0));
+        stages.sample = duration(out.times.sample_ms);
+        stages.rank = duration(out.times.rank_ms);
+        stages.init = duration(out.times.init_ms);
+        stages.filter += duration(out.times.filter_ms);
+        stages.select = duration(out.times.select_ms);
+        let refined = out.refined.len();
         let chosen = out.refined.into_iter().nth(out.chosen)?;
-        matches!(chosen.outcome.stop, Stop::Verified | Stop::Deadline).then_some(chosen.outcome)
+        matches!(chosen.outcome.stop, Stop::Verified | Stop::Deadline).then_some((chosen.outcome, refined))
     }
 
     fn finish(
         &mut self,
         outcome: AmOutcome,
         warm: bool,
+        candidates: usize,
         iterations: usize,
         problem: Problem,
         origin_ns: u64,
-        timings: StageTimings,
     ) -> Planned {
-        let status = match outcome.stop {
-            Stop::Verified | Stop::Tolerance => PlanStatus::Ok,
-            Stop::IterationCap => PlanStatus::Degraded,
-            Stop::Deadline => PlanStatus::DeadlineMissed,
+        let verdict = match outcome.stop {
+            Stop::Verified | Stop::Tolerance => Verdict::Verified,
+            Stop::IterationCap => Verdict::IterationCap,
+            Stop::Deadline => Verdict::DeadlineMissed,
         };
         let plan = JointPlan::new(&self.team, outcome.state.xi);
         let smoothness = plan.smoothness(self.team.samples);
         self.previous =
             Some(Previous { plan: plan.clone(), origin_ns, goals: problem.goals, obstacles: problem.obstacles.len() });
-        Planned {
-            status,
-            rejection: None,
-            plan: Some(plan),
-            primal: outcome.primal,
-            smoothness,
-            iterations,
-            warm,
-            timings,
-        }
+        Planned { plan, verdict, primal: outcome.primal, smoothness, iterations, warm, candidates }
     }
 
     /// The previous plan, if the new problem can be warm-started from it.
@@ -351,33 +335,6 @@ impl TeamPlanner {
         let same_goals = p.goals.iter().zip(&problem.goals).all(|(a, b)| (a - b).norm() <= SAME_GOAL);
         let fresh = origin_ns >= p.origin_ns;
         (same_goals && fresh && p.obstacles == problem.obstacles.len()).then_some(p)
-    }
-
-    /// The previous plan shifted to start at `origin_ns` and fitted under
-    /// the new boundary conditions, which take their start accelerations
-    /// from it (written into `problem`).
-    fn shifted(&self, previous: &Previous, problem: &mut Problem, origin_ns: u64) -> Vec<f64> {
-        let team = &self.team;
-        let (axes, n, nx, k) = (team.dim.axes(), team.robots, team.degree + 1, team.samples);
-        let dt = (origin_ns - previous.origin_ns) as f64 * 1e-9;
-        for (s, kin) in problem.starts.iter_mut().zip(previous.plan.at(dt)) {
-            s.acceleration = kin.acceleration;
-        }
-        let mut series = vec![vec![0.0; k]; axes * n];
-        for s in 0..k {
-            let t = dt + team.horizon * s as f64 / (k - 1) as f64;
-            for (i, kin) in previous.plan.at(t).iter().enumerate() {
-                for a in 0..axes {
-                    series[a * n + i][s] = kin.position[a];
-                }
-            }
-        }
-        let mut xi = vec![0.0; axes * n * nx];
-        let boundary = problem.boundary_values();
-        for (row, b) in boundary.chunks_exact(BOUNDARY_ROWS).enumerate() {
-            self.fitter.fit(&series[row], b, &mut xi[row * nx..(row + 1) * nx]);
-        }
-        xi
     }
 }
 
@@ -396,18 +353,13 @@ mod tests {
         toml::from_str(&text).unwrap()
     }
 
-    fn snapshot(problem: &Problem, timestamp_ns: u64) -> StateSnapshot {
-        let mut s = StateSnapshot::new();
-        s.set_team("t").unwrap();
-        s.dim = 2;
-        s.robots = problem.robots() as u32;
-        s.timestamp_ns = timestamp_ns;
-        for (i, r) in s.robot.iter_mut().take(problem.robots()).enumerate() {
-            r.position = problem.starts[i].position.into();
-            r.velocity = problem.starts[i].velocity.into();
-            r.goal = problem.goals[i].into();
-        }
-        s
+    /// Plans `problem`, measured at `origin_ns`, with the deadline running
+    /// from `received`.
+    fn plan(planner: &mut TeamPlanner, problem: &Problem, origin_ns: u64, received: Instant) -> (Planned, Stages) {
+        let mut stages = Stages::default();
+        let deadline = received + planner.deadline();
+        let planned = planner.plan(problem.clone(), origin_ns, deadline, &mut stages).unwrap();
+        (planned, stages)
     }
 
     #[test]
@@ -420,12 +372,14 @@ mod tests {
         let learned = team.learned.as_mut().unwrap();
         learned.flow = root.join(&learned.flow);
         learned.init = learned.init.as_ref().map(|p| root.join(p));
+        let top_k = learned.top_k;
         let mut planner = TeamPlanner::preload(&team).unwrap();
         let problem = RandomScenario::new(planner.team().clone()).generate(11).unwrap();
-        let planned = planner.plan(&snapshot(&problem, 1), Instant::now());
-        assert_eq!(planned.status, PlanStatus::Ok);
-        assert!(!planned.warm && planned.timings.sample_us > 0, "the pipeline made the cold plan");
-        let m = Metrics::measure(&problem, planned.plan.as_ref().unwrap());
+        let (planned, stages) = plan(&mut planner, &problem, 1, Instant::now());
+        assert_eq!(planned.verdict, Verdict::Verified);
+        assert!(!planned.warm && stages.sample > Duration::ZERO, "the pipeline made the cold plan");
+        assert_eq!(planned.candidates, top_k, "every refined candidate is counted");
+        let m = Metrics::measure(&problem, &planned.plan);
         assert!(m.success(planner.team().separation().0));
         // Weights for another dimension are refused at preload.
         let mut three = team.clone();
@@ -438,51 +392,45 @@ mod tests {
     #[test]
     fn a_cold_plan_then_a_warm_replan_along_it_are_both_verified() {
         let mut planner = TeamPlanner::preload(&config(8, 1000.0)).unwrap();
-        let problem = RandomScenario::new(Team::default_for(Dim::Two, 8)).generate(11).unwrap();
-        let first = planner.plan(&snapshot(&problem, 1_000_000_000), Instant::now());
-        assert_eq!((first.status, first.warm), (PlanStatus::Ok, false));
-        let plan = first.plan.unwrap();
-        assert!(Metrics::measure(&problem, &plan).success(problem.team.separation().0));
+        let problem = RandomScenario::new(planner.team().clone()).generate(11).unwrap();
+        let (first, _) = plan(&mut planner, &problem, 1_000_000_000, Instant::now());
+        assert_eq!((first.verdict, first.warm), (Verdict::Verified, false));
+        let plan0 = first.plan;
+        assert!(Metrics::measure(&problem, &plan0).success(problem.team.separation().0));
 
         // The robots followed the plan for 0.4 s.
         let mut moved = problem.clone();
-        for (s, k) in moved.starts.iter_mut().zip(plan.at(0.4)) {
+        for (s, k) in moved.starts.iter_mut().zip(plan0.at(0.4)) {
             s.position = k.position;
             s.velocity = k.velocity;
         }
-        let second = planner.plan(&snapshot(&moved, 1_400_000_000), Instant::now());
-        assert_eq!((second.status, second.warm), (PlanStatus::Ok, true));
-        moved.starts.iter_mut().zip(plan.at(0.4)).for_each(|(s, k)| s.acceleration = k.acceleration);
-        let m = Metrics::measure(&moved, &second.plan.unwrap());
+        let (second, _) = plan(&mut planner, &moved, 1_400_000_000, Instant::now());
+        assert_eq!((second.verdict, second.warm), (Verdict::Verified, true));
+        moved.starts.iter_mut().zip(plan0.at(0.4)).for_each(|(s, k)| s.acceleration = k.acceleration);
+        let m = Metrics::measure(&moved, &second.plan);
         assert!(m.success(problem.team.separation().0), "{m:?}");
         assert!(second.iterations < 100, "warm replans stay cheap: {}", second.iterations);
     }
 
     #[test]
-    fn changed_goals_get_a_cold_plan_and_bad_input_a_rejection() {
+    fn changed_goals_get_a_cold_plan() {
         let mut planner = TeamPlanner::preload(&config(4, 1000.0)).unwrap();
-        let scenario = RandomScenario::new(Team::default_for(Dim::Two, 4));
+        let scenario = RandomScenario::new(planner.team().clone());
         let a = scenario.generate(1).unwrap();
-        assert!(planner.plan(&snapshot(&a, 10), Instant::now()).plan.is_some());
+        plan(&mut planner, &a, 10, Instant::now());
         let mut b = a.clone();
         b.goals.swap(0, 1);
-        let replanned = planner.plan(&snapshot(&b, 20), Instant::now());
-        assert_eq!((replanned.status, replanned.warm), (PlanStatus::Ok, false));
-        let mut bad = snapshot(&b, 30);
-        bad.robot[0].goal[0] = f64::NAN;
-        let rejected = planner.plan(&bad, Instant::now());
-        assert_eq!(rejected.status, PlanStatus::RejectedInput);
-        assert_eq!(rejected.rejection.unwrap().reason, Reason::NonFinite);
-        assert!(planner.last_plan().is_some(), "a rejection keeps the last plan");
+        let (replanned, _) = plan(&mut planner, &b, 20, Instant::now());
+        assert_eq!((replanned.verdict, replanned.warm), (Verdict::Verified, false));
+        assert!(planner.last_plan().is_some());
     }
 
     #[test]
-    fn a_passed_deadline_publishes_the_best_iterate_as_missed() {
+    fn a_passed_deadline_returns_the_best_iterate_as_missed() {
         let mut planner = TeamPlanner::preload(&config(16, 1000.0)).unwrap();
-        let problem = RandomScenario::new(Team::default_for(Dim::Two, 16)).generate(5).unwrap();
+        let problem = RandomScenario::new(planner.team().clone()).generate(5).unwrap();
         let long_ago = Instant::now() - Duration::from_secs(5);
-        let late = planner.plan(&snapshot(&problem, 10), long_ago);
-        assert_eq!(late.status, PlanStatus::DeadlineMissed);
-        assert!(late.plan.is_some());
+        let (late, _) = plan(&mut planner, &problem, 10, long_ago);
+        assert_eq!(late.verdict, Verdict::DeadlineMissed);
     }
 }

@@ -10,7 +10,7 @@ use std::time::{Duration, Instant};
 use crossbeam::channel::{Receiver, Sender, TrySendError, bounded};
 use flowopt_client::clock::monotonic_ns;
 use flowopt_client::ports::cleanup_dead_nodes;
-use flowopt_client::{ClientError, Endpoint, StateSubscriber, TeamChannel};
+use flowopt_client::{Endpoint, PortError, StateSubscriber, TeamChannel};
 use iceoryx2::prelude::*;
 use thiserror::Error;
 use tracing::{debug, info, warn};
@@ -36,7 +36,7 @@ pub enum DaemonError {
     },
     /// An iceoryx2 port could not be opened or used.
     #[error(transparent)]
-    Ipc(#[from] ClientError),
+    Ipc(#[from] PortError),
     /// The WaitSet failed.
     #[error("WaitSet: {0}")]
     WaitSet(String),

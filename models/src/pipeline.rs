@@ -10,7 +10,7 @@ use std::path::Path;
 use std::time::Instant;
 
 use candle_core::{Device, Tensor};
-use flowopt_planner::am::{AmOutcome, AmState, Engine, Prepared, Stop};
+use flowopt_planner::am::{AmOutcome, AmSettings, AmState, Engine, EngineSet, Objective, Prepared, Stop};
 use flowopt_planner::plan::JointPlan;
 use flowopt_planner::problem::{Problem, Team};
 use rand::SeedableRng;
@@ -99,7 +99,7 @@ impl<'a> From<&'a Problem> for Query<'a> {
 
 /// Wall time of every stage (ms); for a batch, the whole batch's.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
-pub struct StageTimes {
+pub struct PipelineTimes {
     /// Encoding, noise and flow integration.
     pub sample_ms: f64,
     /// Decoding, rerouting and primal residuals of every candidate.
@@ -143,7 +143,7 @@ pub struct PipelineOutcome {
     /// Whether the returned plan was verified by the safety filter.
     pub verified: bool,
     /// Stage times.
-    pub times: StageTimes,
+    pub times: PipelineTimes,
     /// Every sampled candidate's coefficients, as rerouted (for diversity
     /// studies).
     pub samples: Vec<Vec<f64>>,
@@ -377,11 +377,17 @@ impl FlowOpt {
                 r.rank = rank;
             }
             let (chosen, verified) = select(&mine);
-            outcomes.push(PipelineOutcome { refined: mine, chosen, verified, times: StageTimes::default(), samples });
+            outcomes.push(PipelineOutcome {
+                refined: mine,
+                chosen,
+                verified,
+                times: PipelineTimes::default(),
+                samples,
+            });
         }
         let done = Instant::now();
         let ms = |a: Instant, b: Instant| (b - a).as_secs_f64() * 1e3;
-        let times = StageTimes {
+        let times = PipelineTimes {
             sample_ms: ms(started, sampled),
             rank_ms: ms(sampled, ranked),
             init_ms: ms(ranked, initialised),
@@ -393,6 +399,45 @@ impl FlowOpt {
             o.times = times;
         }
         Ok(outcomes)
+    }
+}
+
+/// The learned planner as the daemon and the command line assemble it:
+/// the networks (with the initialiser when its weights are given) and the
+/// metric of the safety filter that repairs their samples.
+#[derive(Debug, Clone)]
+pub struct LearnedPlanner {
+    model: FlowOpt,
+    sf_objective: Objective,
+}
+
+impl LearnedPlanner {
+    /// Loads the flow policy at `flow` and the initialiser at `init`;
+    /// `sf_smoothing` weighs the smoothness of the filter's corrections
+    /// ([`Objective::filter`]; finite, 0 or more).
+    pub fn load(flow: &Path, init: Option<&Path>, sf_smoothing: f64) -> Result<Self, ModelError> {
+        if !(sf_smoothing.is_finite() && sf_smoothing >= 0.0) {
+            return Err(ModelError::Config(format!("the SF smoothing weight {sf_smoothing} is not finite and >= 0")));
+        }
+        Ok(Self { model: FlowOpt::load(flow, init)?, sf_objective: Objective::filter(sf_smoothing) })
+    }
+
+    /// The networks.
+    pub fn model(&self) -> &FlowOpt {
+        &self.model
+    }
+
+    /// The safety filter's objective.
+    pub fn sf_objective(&self) -> Objective {
+        self.sf_objective
+    }
+
+    /// The safety filters for `team` (whose dimension and basis the
+    /// networks must plan in) with `settings`, built for every obstacle
+    /// count up to `max_obstacles`.
+    pub fn filters(&self, team: &Team, settings: AmSettings, max_obstacles: usize) -> Result<EngineSet, ModelError> {
+        self.model.check(team)?;
+        Ok(EngineSet::preloaded(team, self.sf_objective, settings, max_obstacles)?)
     }
 }
 

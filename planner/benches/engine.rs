@@ -5,10 +5,10 @@
 use std::hint::black_box;
 
 use criterion::{BatchSize, Criterion, criterion_group, criterion_main};
-use flowopt_planner::am::WorkingPoint;
 use flowopt_planner::basis::{BOUNDARY_ROWS, Basis};
 use flowopt_planner::kkt::{DenseTeamKkt, TeamKkt};
 use flowopt_planner::problem::Dim;
+use flowopt_planner::working_point::WorkingPoint;
 
 fn iterations(c: &mut Criterion) {
     for (robots, dim, name) in [

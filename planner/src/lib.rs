@@ -12,7 +12,9 @@
 //! - [`reference`]: the smoothest curves through the boundary values;
 //! - [`plan`]: a joint plan and its evaluation;
 //! - [`metrics`]: smoothness, arc length, clearances, the success verdict,
-//!   time scaling.
+//!   time scaling;
+//! - [`working_point`]: the safety filter's benchmark working point, shared
+//!   by the criterion benchmark and `flowopt eval`'s machine-speed line.
 
 pub mod am;
 pub mod basis;
@@ -24,3 +26,4 @@ pub mod problem;
 pub mod reference;
 pub mod route;
 pub mod scenario;
+pub mod working_point;

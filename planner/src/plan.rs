@@ -3,8 +3,9 @@
 
 use nalgebra::Vector3;
 
-use crate::basis::bernstein_row;
-use crate::problem::{Dim, Team};
+use crate::basis::{BOUNDARY_ROWS, bernstein_row};
+use crate::problem::{Dim, Problem, Team};
+use crate::route::Fitter;
 
 /// Position, velocity and acceleration of one robot at one instant.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -92,6 +93,35 @@ impl JointPlan {
         self.sampled(samples, 2).iter().map(|a| a * a).sum::<f64>() / self.robots as f64
     }
 
+    /// This plan as a warm start `dt` seconds after its origin, for
+    /// `problem` (the same team, measured then): the positions from `dt` on
+    /// (held at the goal past the end) sampled at the `K` instants of a new
+    /// horizon and fitted to the basis (`fitter`, of this plan's basis)
+    /// under `problem`'s boundary conditions. The start accelerations, which
+    /// a snapshot does not measure, are taken from this plan at `dt` and
+    /// written into `problem`. Returns the coefficients, `[axis][robot][coef]`.
+    pub fn shifted(&self, dt: f64, problem: &mut Problem, fitter: &Fitter) -> Vec<f64> {
+        let team = &problem.team;
+        let (axes, n, nx, k) = (team.dim.axes(), team.robots, team.degree + 1, team.samples);
+        for (s, kin) in problem.starts.iter_mut().zip(self.at(dt)) {
+            s.acceleration = kin.acceleration;
+        }
+        let mut series = vec![vec![0.0; k]; axes * n];
+        for s in 0..k {
+            let t = dt + team.horizon * s as f64 / (k - 1) as f64;
+            for (i, kin) in self.at(t).iter().enumerate() {
+                for a in 0..axes {
+                    series[a * n + i][s] = kin.position[a];
+                }
+            }
+        }
+        let mut xi = vec![0.0; axes * n * nx];
+        for (row, b) in problem.boundary_values().chunks_exact(BOUNDARY_ROWS).enumerate() {
+            fitter.fit(&series[row], b, &mut xi[row * nx..(row + 1) * nx]);
+        }
+        xi
+    }
+
     /// The `order`-th time derivative (physical units) of every robot at
     /// `samples` evenly spaced instants over `[0, T]`, `[axis][robot][sample]`.
     pub fn sampled(&self, samples: usize, order: usize) -> Vec<f64> {
@@ -106,5 +136,48 @@ impl JointPlan {
             }
         }
         out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use nalgebra::Vector3;
+
+    use super::*;
+    use crate::metrics::Metrics;
+    use crate::problem::StartState;
+    use crate::reference::SmoothReference;
+
+    #[test]
+    fn a_shifted_plan_starts_where_the_robots_are_and_follows_the_rest_of_the_old_one() {
+        let team = Team::default_for(Dim::Two, 2);
+        let at = |x: f64, y: f64| Vector3::new(x, y, 0.0);
+        let problem = Problem {
+            team: team.clone(),
+            starts: vec![StartState::at_rest(at(-0.6, 0.2)), StartState::at_rest(at(0.5, -0.4))],
+            goals: vec![at(0.6, -0.1), at(-0.3, 0.7)],
+            obstacles: vec![],
+        };
+        let plan = JointPlan::new(&team, SmoothReference::new(&team).unwrap().coefficients(&problem));
+        let dt = 0.8;
+        let mut later = problem.clone();
+        for (s, k) in later.starts.iter_mut().zip(plan.at(dt)) {
+            *s = StartState { position: k.position, velocity: k.velocity, acceleration: Vector3::zeros() };
+        }
+        let fitter = Fitter::new(&team.basis().unwrap()).unwrap();
+        let shifted = JointPlan::new(&team, plan.shifted(dt, &mut later, &fitter));
+        // The start acceleration was taken from the old plan ...
+        for (s, k) in later.starts.iter().zip(plan.at(dt)) {
+            assert_eq!(s.acceleration, k.acceleration);
+        }
+        // ... so the fit meets every boundary condition of the new problem,
+        let m = Metrics::measure(&later, &shifted);
+        assert!(m.boundary_error < 1e-9, "boundary error {}", m.boundary_error);
+        // and stays on the old plan's path (held at the goal after its end).
+        for t in [0.5, 1.5, 3.0, 4.5] {
+            for (new, old) in shifted.at(t).iter().zip(plan.at(t + dt)) {
+                assert!((new.position - old.position).norm() < 0.01, "t = {t}: {new:?} vs {old:?}");
+            }
+        }
     }
 }

@@ -12,8 +12,6 @@
 //! assert_eq!(swap.goals[0], -swap.starts[0].position);
 //! ```
 
-use std::path::Path;
-
 use nalgebra::Vector3;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -39,22 +37,9 @@ pub enum ScenarioError {
     /// The produced or loaded problem is invalid.
     #[error("ScenarioError::Invalid: {0}")]
     Invalid(#[from] ProblemError),
-    /// The scenario file could not be read.
-    #[error("ScenarioError::Io: {path}: {source}")]
-    Io {
-        /// File path.
-        path: String,
-        /// Cause.
-        source: std::io::Error,
-    },
-    /// The scenario file does not parse.
-    #[error("ScenarioError::Parse: {path}: {message}")]
-    Parse {
-        /// File path.
-        path: String,
-        /// Parser message.
-        message: String,
-    },
+    /// The scenario text does not parse.
+    #[error("ScenarioError::Parse: {0}")]
+    Parse(String),
     /// A point in the file has the wrong number of coordinates.
     #[error("ScenarioError::BadPoint: {what} has {got} coordinates, the scenario is {dim}D")]
     BadPoint {
@@ -361,27 +346,46 @@ pub struct FileObstacle {
     pub half_height: Option<f64>,
 }
 
-fn default_horizon() -> f64 {
+/// The horizon a team file (scenario or daemon configuration) that gives
+/// none plans over.
+pub fn default_horizon() -> f64 {
     Team::DEFAULT_HORIZON
 }
-fn default_degree() -> usize {
+
+/// The Bernstein degree of a team file that gives none.
+pub fn default_degree() -> usize {
     Team::DEFAULT_DEGREE
 }
-fn default_samples() -> usize {
+
+/// The constraint samples of a team file that gives none.
+pub fn default_samples() -> usize {
     Team::DEFAULT_SAMPLES
 }
 
+/// The team a file describes (scenario files and the daemon's `[[team]]`
+/// tables share these fields), not yet validated.
+pub fn file_team(
+    dim: Dim,
+    robots: usize,
+    robot: &FileShape,
+    workspace: &FileBox,
+    horizon: f64,
+    degree: usize,
+    samples: usize,
+) -> Result<Team, ScenarioError> {
+    Ok(Team { dim, robots, robot: robot.spheroid(), workspace: workspace.workspace(dim)?, horizon, degree, samples })
+}
+
 impl ScenarioFile {
-    /// Reads a TOML (or `.json`) scenario file and validates the problem.
-    pub fn load(path: &Path) -> Result<Problem, ScenarioError> {
-        let shown = path.display().to_string();
-        let text = std::fs::read_to_string(path).map_err(|source| ScenarioError::Io { path: shown.clone(), source })?;
-        let file: ScenarioFile = if path.extension().is_some_and(|e| e == "json") {
-            serde_json::from_str(&text)
-                .map_err(|e| ScenarioError::Parse { path: shown.clone(), message: e.to_string() })?
-        } else {
-            toml::from_str(&text).map_err(|e| ScenarioError::Parse { path: shown.clone(), message: e.to_string() })?
-        };
+    /// Parses a scenario in TOML and validates the problem.
+    pub fn from_toml(text: &str) -> Result<Problem, ScenarioError> {
+        let file: ScenarioFile = toml::from_str(text).map_err(|e| ScenarioError::Parse(e.to_string()))?;
+        file.into_problem()
+    }
+
+    /// Parses a scenario in JSON and validates the problem.
+    pub fn from_json(text: &str) -> Result<Problem, ScenarioError> {
+        let file: ScenarioFile = serde_json::from_str(text).map_err(|e| ScenarioError::Parse(e.to_string()))?;
         file.into_problem()
     }
 
@@ -393,15 +397,8 @@ impl ScenarioFile {
             Some(v) => point(what, v),
             None => Ok(Vector3::zeros()),
         };
-        let team = Team {
-            dim: self.dim,
-            robots: self.robots.len(),
-            robot: self.robot.spheroid(),
-            workspace: self.workspace.workspace(dim)?,
-            horizon: self.horizon,
-            degree: self.degree,
-            samples: self.samples,
-        };
+        let team =
+            file_team(dim, self.robots.len(), &self.robot, &self.workspace, self.horizon, self.degree, self.samples)?;
         let mut starts = Vec::with_capacity(self.robots.len());
         let mut goals = Vec::with_capacity(self.robots.len());
         for (i, r) in self.robots.iter().enumerate() {

@@ -14,7 +14,7 @@
 //! needed.
 
 use crate::basis::bernstein_row;
-use crate::linalg::gemm;
+use crate::linalg::{Accum, gemm};
 use crate::problem::{Dim, Problem};
 
 /// Squared scaled distance below which two centres count as coincident and
@@ -140,7 +140,7 @@ impl Projection {
         let count = grid.count();
         let n_xi = grid.pt.len() / count;
         let rows = dim.axes() * robots;
-        gemm(&mut self.pos, xi, &grid.pt, rows, n_xi, count, false);
+        gemm(&mut self.pos, xi, &grid.pt, rows, n_xi, count, Accum::Replace);
         self.corr.fill(0.0);
         self.touched.fill(false);
         let collisions = match dim {

@@ -7,8 +7,8 @@ use flowopt_planner::am::Residuals;
 use flowopt_planner::plan::JointPlan;
 use flowopt_planner::problem::Team;
 
-use crate::methods::Record;
-use crate::stats::{mean, quantile};
+use crate::offline::methods::Record;
+use crate::offline::stats::{mean, quantile};
 
 /// Fraction of `records` that succeeded within `budget_ms` (each planned
 /// without a deadline: an instance counts when its plan verified and took

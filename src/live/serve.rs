@@ -7,7 +7,7 @@ use anyhow::{Context, Result};
 use clap::Args;
 use signal_hook::consts::{SIGINT, SIGTERM};
 
-use crate::daemon_args::DaemonArgs;
+use crate::live::daemon_args::DaemonArgs;
 
 /// Run the daemon.
 #[derive(Debug, Args)]

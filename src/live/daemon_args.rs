@@ -8,7 +8,7 @@ use flowopt_daemon::config::{DaemonConfig, TeamConfig};
 
 /// The shipped default configuration, used when `config/default.toml` is
 /// not found (running from outside the repository).
-const DEFAULT_CONFIG: &str = include_str!("../config/default.toml");
+const DEFAULT_CONFIG: &str = include_str!("../../config/default.toml");
 /// Where the default configuration lives in the repository.
 const DEFAULT_CONFIG_PATH: &str = "config/default.toml";
 

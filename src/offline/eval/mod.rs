@@ -17,13 +17,14 @@ use std::time::Instant;
 
 use anyhow::{Context, Result};
 use clap::Args;
-use flowopt_planner::am::{AmSettings, WorkingPoint};
+use flowopt_planner::am::AmSettings;
 use flowopt_planner::problem::{Dim, Problem, Team};
 use flowopt_planner::scenario::{RandomScenario, antipodal};
+use flowopt_planner::working_point::WorkingPoint;
 use indicatif::{ProgressBar, ProgressStyle};
 
-use crate::methods::{LearnedArgs, Method, Overrides, Planner, Record};
-use crate::stats::{IterationStats, mean, quantile};
+use crate::offline::methods::{LearnedArgs, Method, Overrides, Planner, Record};
+use crate::offline::stats::{IterationStats, mean, quantile};
 use figures::{BandCurve, BandPanel, Curve, PlanPanel};
 use measures::{Band, PairwiseProfile, Series, success_within};
 use report::{Table, ms, num, pct};

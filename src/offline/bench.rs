@@ -9,10 +9,10 @@ use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use serde::Serialize;
 
-use crate::instances::InstanceArgs;
-use crate::methods::{LearnedArgs, Method, Planner, Record, plan_distance};
-use crate::solve::EngineArgs;
-use crate::stats::{IterationStats, mean, quantile};
+use crate::offline::instances::InstanceArgs;
+use crate::offline::methods::{LearnedArgs, Method, Planner, Record, plan_distance};
+use crate::offline::solve::EngineArgs;
+use crate::offline::stats::{IterationStats, mean, quantile};
 
 /// Benchmark a planning method on seeded random instances.
 #[derive(Debug, Args)]
@@ -202,7 +202,7 @@ fn stage_medians(records: &[Record]) -> Option<serde_json::Value> {
     if stages.is_empty() {
         return None;
     }
-    let median = |f: &dyn Fn(&flowopt_models::pipeline::StageTimes) -> f64| {
+    let median = |f: &dyn Fn(&flowopt_models::pipeline::PipelineTimes) -> f64| {
         quantile(&stages.iter().map(f).collect::<Vec<_>>(), 0.5)
     };
     Some(serde_json::json!({

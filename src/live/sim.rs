@@ -14,7 +14,7 @@ use clap::Args;
 use flowopt_client::clock::monotonic_ns;
 use flowopt_client::{Endpoint, JointTrajectory, PlanStatus, StatePublisher, TeamChannel};
 use flowopt_planner::plan::JointPlan;
-use flowopt_planner::problem::Team;
+use flowopt_planner::problem::{Problem, StartState, Team};
 use flowopt_planner::scenario::RandomScenario;
 use hdrhistogram::Histogram;
 use nalgebra::Vector3;
@@ -23,7 +23,7 @@ use rand_chacha::ChaCha8Rng;
 use rand_distr::StandardNormal;
 use serde::{Deserialize, Serialize};
 
-use crate::daemon_args::DaemonArgs;
+use crate::live::daemon_args::DaemonArgs;
 
 /// Position gain (1/s^2): with `KD` a critically damped 5 rad/s loop.
 const KP: f64 = 25.0;
@@ -205,19 +205,21 @@ impl Robots {
             }
             v
         };
-        let measured: Vec<_> = (0..n)
-            .map(|i| (self.position[i] + noise(POSITION_NOISE), self.velocity[i] + noise(VELOCITY_NOISE)))
+        let starts = (0..n)
+            .map(|i| StartState {
+                position: self.position[i] + noise(POSITION_NOISE),
+                velocity: self.velocity[i] + noise(VELOCITY_NOISE),
+                acceleration: Vector3::zeros(),
+            })
             .collect();
-        Ok(states.publish_with(|s| {
+        let measured = Problem { team: self.team.clone(), starts, goals: self.goal.clone(), obstacles: Vec::new() };
+        let mut written = Ok(());
+        let sequence = states.publish_with(|s| {
             s.timestamp_ns = at_ns;
-            s.dim = axes as u32;
-            s.robots = n as u32;
-            for (i, r) in s.robot.iter_mut().take(n).enumerate() {
-                r.position = measured[i].0.into();
-                r.velocity = measured[i].1.into();
-                r.goal = self.goal[i].into();
-            }
-        })?)
+            written = s.write_problem(&measured);
+        })?;
+        written?;
+        Ok(sequence)
     }
 }
 

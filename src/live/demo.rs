@@ -9,8 +9,8 @@ use anyhow::{Context, Result, bail};
 use clap::Args;
 use serde::Serialize;
 
-use crate::daemon_args::DaemonArgs;
-use crate::sim::{SimReport, print_report};
+use crate::live::daemon_args::DaemonArgs;
+use crate::live::sim::{SimReport, print_report};
 
 /// How long the daemon may take to exit after SIGTERM.
 const SHUTDOWN_GRACE: Duration = Duration::from_secs(5);

@@ -1,7 +1,7 @@
 //! Command-line selection of problem instances, shared by every subcommand
 //! that plans: a scenario file, the antipodal swap, or seeded random teams.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
 use clap::{Args, ValueEnum};
@@ -78,7 +78,7 @@ impl InstanceArgs {
     /// Instance number `index` (a file or the antipodal swap ignore it).
     pub fn instance(&self, index: u64) -> Result<Problem> {
         if let Some(path) = &self.scenario_file {
-            return ScenarioFile::load(path).with_context(|| format!("reading scenario {}", path.display()));
+            return load_scenario(path);
         }
         if self.antipodal {
             let team = self.team();
@@ -91,4 +91,15 @@ impl InstanceArgs {
         let seed = self.seed + index;
         self.generator().generate(seed).with_context(|| format!("generating random instance with seed {seed}"))
     }
+}
+
+/// Reads a scenario file: JSON for a `.json` file, TOML otherwise.
+pub fn load_scenario(path: &Path) -> Result<Problem> {
+    let text = std::fs::read_to_string(path).with_context(|| format!("reading scenario {}", path.display()))?;
+    let problem = if path.extension().is_some_and(|e| e == "json") {
+        ScenarioFile::from_json(&text)
+    } else {
+        ScenarioFile::from_toml(&text)
+    };
+    problem.with_context(|| format!("scenario {}", path.display()))
 }

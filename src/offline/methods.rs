@@ -1,6 +1,5 @@
 //! The planning methods the CLI can run and time on one instance.
 
-use std::collections::HashMap;
 use std::time::Instant;
 
 use anyhow::{Context, Result};
@@ -8,8 +7,8 @@ use clap::ValueEnum;
 use std::path::PathBuf;
 
 use flowopt_models::flow::Solver;
-use flowopt_models::pipeline::{FlowOpt, PipelineOutcome, PipelineSettings, Query, StageTimes};
-use flowopt_planner::am::{AmOutcome, AmSettings, Engine, Objective, Residuals, Stop};
+use flowopt_models::pipeline::{LearnedPlanner, PipelineOutcome, PipelineSettings, PipelineTimes, Query};
+use flowopt_planner::am::{AmOutcome, AmSettings, Engine, EngineSet, Objective, Residuals, Stop};
 use flowopt_planner::metrics::Metrics;
 use flowopt_planner::plan::JointPlan;
 use flowopt_planner::problem::{Problem, Team};
@@ -182,7 +181,7 @@ pub struct Record {
     /// The same to 0.001 m.
     pub iterations_to_0_001: Option<usize>,
     /// Pipeline stage times (learned methods).
-    pub stages: Option<StageTimes>,
+    pub stages: Option<PipelineTimes>,
     /// The returned plan's coefficients.
     #[serde(skip)]
     pub xi: Vec<f64>,
@@ -192,7 +191,7 @@ pub struct Record {
 }
 
 /// What an engine is used for.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Use {
     Optimise,
     Filter,
@@ -204,55 +203,66 @@ enum Use {
 /// Cap of the residual studies' iterations.
 const STUDY_CAP: usize = 10_000;
 
-/// The key of the engine for `usage` on a team shape and obstacle count.
-fn engine_key(team: &Team, obstacles: usize, usage: Use) -> (String, usize, Use) {
-    (format!("{team:?}"), obstacles, usage)
-}
-
 /// The first iterate whose primal residual is at or below `level`.
 fn first_below(history: &[Residuals], level: f64) -> Option<usize> {
     history.iter().position(|r| r.primal <= level)
 }
 
-/// Engines built once per (team, obstacle count, objective) and reused:
-/// construction (factorisations) is a start-up cost, not a per-plan one.
+/// Engines built once per (team, objective, settings) and obstacle count
+/// and reused: construction (factorisations) is a start-up cost, not a
+/// per-plan one.
 pub struct Planner {
     overrides: Overrides,
     learned_args: Option<LearnedArgs>,
-    learned: Option<FlowOpt>,
-    engines: HashMap<(String, usize, Use), Engine>,
+    learned: Option<LearnedPlanner>,
+    engines: Vec<EngineSet>,
 }
 
 impl Planner {
     /// A planner applying `overrides` to the default settings; the learned
     /// methods load their weights from `learned` on first use.
     pub fn new(overrides: Overrides, learned: Option<LearnedArgs>) -> Self {
-        Self { overrides, learned_args: learned, learned: None, engines: HashMap::new() }
+        Self { overrides, learned_args: learned, learned: None, engines: Vec::new() }
+    }
+
+    /// The objective and settings of the engines for `usage`.
+    fn configuration(&self, usage: Use) -> (Objective, AmSettings) {
+        let filter = self.learned_args.as_ref().map_or(Objective::Projection, LearnedArgs::sf_objective);
+        match usage {
+            Use::Filter => (filter, self.overrides.apply(AmSettings::safety_filter())),
+            Use::Optimise => (Objective::smoothness(), self.overrides.apply(AmSettings::optimiser())),
+            Use::StudyFilter | Use::StudyOptimise => {
+                let (objective, base) = if usage == Use::StudyFilter {
+                    (filter, AmSettings::safety_filter())
+                } else {
+                    (Objective::smoothness(), AmSettings::optimiser())
+                };
+                let mut s = base.residual_study(0.001);
+                s.max_iterations = STUDY_CAP;
+                s.restarts = 0;
+                (objective, s)
+            }
+        }
+    }
+
+    /// The index of the engine set for `usage` on `team`, with the engine
+    /// for `obstacles` built.
+    fn engine_set(&mut self, team: &Team, obstacles: usize, usage: Use) -> Result<usize> {
+        let (objective, settings) = self.configuration(usage);
+        let index = match self.engines.iter().position(|set| set.is_for(team, objective, &settings)) {
+            Some(i) => i,
+            None => {
+                self.engines.push(EngineSet::new(team, objective, settings));
+                self.engines.len() - 1
+            }
+        };
+        self.engines[index].engine(obstacles).context("building the AM engine")?;
+        Ok(index)
     }
 
     fn engine(&mut self, team: &Team, obstacles: usize, usage: Use) -> Result<&Engine> {
-        let key = engine_key(team, obstacles, usage);
-        if !self.engines.contains_key(&key) {
-            let filter = self.learned_args.as_ref().map_or(Objective::Projection, LearnedArgs::sf_objective);
-            let (objective, settings) = match usage {
-                Use::Filter => (filter, self.overrides.apply(AmSettings::safety_filter())),
-                Use::Optimise => (Objective::smoothness(), self.overrides.apply(AmSettings::optimiser())),
-                Use::StudyFilter | Use::StudyOptimise => {
-                    let (objective, base) = if usage == Use::StudyFilter {
-                        (filter, AmSettings::safety_filter())
-                    } else {
-                        (Objective::smoothness(), AmSettings::optimiser())
-                    };
-                    let mut s = base.residual_study(0.001);
-                    s.max_iterations = STUDY_CAP;
-                    s.restarts = 0;
-                    (objective, s)
-                }
-            };
-            let engine = Engine::new(team, obstacles, objective, settings).context("building the AM engine")?;
-            self.engines.insert(key.clone(), engine);
-        }
-        Ok(&self.engines[&key])
+        let index = self.engine_set(team, obstacles, usage)?;
+        self.engines[index].get(obstacles).context("the engine was built")
     }
 
     /// Loads the learned planner's weights on first use.
@@ -260,9 +270,9 @@ impl Planner {
         let args = self.learned_args.as_ref().context("no learned-planner weights were given")?;
         if self.learned.is_none() {
             let init = args.init_weights.exists().then_some(args.init_weights.as_path());
-            let model = FlowOpt::load(&args.flow_weights, init)
+            let learned = LearnedPlanner::load(&args.flow_weights, init, args.sf_smoothing)
                 .with_context(|| format!("loading the learned planner from {}", args.flow_weights.display()))?;
-            self.learned = Some(model);
+            self.learned = Some(learned);
         }
         Ok(())
     }
@@ -273,7 +283,7 @@ impl Planner {
         if let Err(e) = self.load_learned() {
             return Some(format!("{e:#}"));
         }
-        self.learned.as_ref()?.check(team).err().map(|e| e.to_string())
+        self.learned.as_ref()?.model().check(team).err().map(|e| e.to_string())
     }
 
     /// Plans `problem` with a learned method, its last `hidden` obstacles
@@ -304,12 +314,12 @@ impl Planner {
         let Some(first) = problems.first() else { return Ok((Vec::new(), 0.0)) };
         let obstacles = first.obstacles.len();
         anyhow::ensure!(hidden <= obstacles, "cannot hide {hidden} of {obstacles} obstacles");
-        let key = engine_key(&first.team, obstacles, Use::Filter);
-        self.engine(&first.team, obstacles, Use::Filter)?;
+        let set = self.engine_set(&first.team, obstacles, Use::Filter)?;
         self.load_learned()?;
-        let (Some(model), Some(args)) = (self.learned.as_ref(), self.learned_args.as_ref()) else {
+        let (Some(learned), Some(args)) = (self.learned.as_ref(), self.learned_args.as_ref()) else {
             anyhow::bail!("the learned planner is not loaded");
         };
+        let model = learned.model();
         if method == Method::Flowopt && !model.has_init() {
             anyhow::bail!("{} is missing: flowopt needs the SF initialiser", args.init_weights.display());
         }
@@ -322,7 +332,7 @@ impl Planner {
             })
             .collect();
         let queries: Vec<Query> = seen.iter().zip(problems).map(|(seen, enforced)| Query { seen, enforced }).collect();
-        let sf = &self.engines[&key];
+        let sf = self.engines[set].get(obstacles).context("the filter was built")?;
         let start = Instant::now();
         let outcomes =
             model.plan_batch(&queries, sf, &args.settings(method), seed, None).context("running the pipeline")?;
@@ -377,7 +387,7 @@ impl Record {
         outcome: AmOutcome,
         time_ms: f64,
         study: Vec<Residuals>,
-        stages: Option<StageTimes>,
+        stages: Option<PipelineTimes>,
     ) -> Self {
         let plan = flowopt_planner::plan::JointPlan::new(&problem.team, outcome.state.xi.clone());
         let metrics = Metrics::measure(problem, &plan);

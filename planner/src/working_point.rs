@@ -6,7 +6,7 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use thiserror::Error;
 
-use super::{AmSettings, AmState, Engine, EngineError, Objective, Prepared};
+use crate::am::{AmSettings, AmState, Engine, EngineError, Objective, Prepared};
 use crate::problem::{Dim, Team};
 use crate::scenario::{RandomScenario, ScenarioError};
 

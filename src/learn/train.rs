@@ -146,7 +146,7 @@ struct InitArgs {
     /// Smoothing weight of the unrolled SF's metric (0: the plain
     /// projection, as the shipped initialiser; 3, the pipeline's metric,
     /// measured on par with it: docs/LEARNED.md).
-    #[arg(long, default_value_t = 0.0, value_parser = crate::methods::smoothing_weight)]
+    #[arg(long, default_value_t = 0.0, value_parser = crate::offline::methods::smoothing_weight)]
     sf_smoothing: f64,
 }
 

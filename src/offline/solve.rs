@@ -3,8 +3,8 @@
 use anyhow::Result;
 use clap::Args;
 
-use crate::instances::InstanceArgs;
-use crate::methods::{Method, Overrides, Planner};
+use crate::offline::instances::InstanceArgs;
+use crate::offline::methods::{Method, Overrides, Planner};
 
 /// Plan one instance.
 #[derive(Debug, Args)]
@@ -17,7 +17,7 @@ pub struct SolveArgs {
     #[command(flatten)]
     engine: EngineArgs,
     #[command(flatten)]
-    learned: crate::methods::LearnedArgs,
+    learned: crate::offline::methods::LearnedArgs,
     /// Print one JSON object instead of text.
     #[arg(long)]
     json: bool,

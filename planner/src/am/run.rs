@@ -1,0 +1,289 @@
+//! Running the iterations: stopping rules (tolerance, dense verification,
+//! iteration cap, deadline), the optimiser's restarts, and the checks a
+//! stop is decided by.
+
+use std::time::Instant;
+
+use super::prepare::Prepared;
+use super::projection::Projection;
+use super::settings::Stop;
+use super::{AmOutcome, AmState, Engine, EngineError, Residuals};
+use crate::problem::Problem;
+
+/// Iterations between two deadline checks (a clock read costs about as
+/// much as a tenth of a small team's iteration).
+const DEADLINE_CHECK_EVERY: usize = 4;
+
+impl Engine {
+    /// Validates, prepares and optimises from the cold start, restarting
+    /// from perturbed cold starts ([`AmSettings::restarts`]) while attempts
+    /// hit their share of the iteration cap.
+    pub fn solve(&self, problem: &Problem) -> Result<AmOutcome, EngineError> {
+        let prepared = self.prepare(problem, None)?;
+        Ok(self.solve_prepared(&prepared))
+    }
+
+    /// [`Self::solve`] for an already prepared problem.
+    pub fn solve_prepared(&self, prepared: &Prepared) -> AmOutcome {
+        self.solve_prepared_until(prepared, None)
+    }
+
+    /// [`Self::solve_prepared`] that also stops ([`Stop::Deadline`]) with the
+    /// best iterate so far once `deadline` has passed.
+    pub fn solve_prepared_until(&self, prepared: &Prepared, deadline: Option<Instant>) -> AmOutcome {
+        let attempts = self.settings.restarts + 1;
+        let share = self.settings.max_iterations / attempts;
+        let mut iterations = 0;
+        let mut history = Vec::new();
+        let mut best: Option<AmOutcome> = None;
+        for attempt in 0..attempts {
+            let mut state = self.cold_start(prepared);
+            if attempt > 0 {
+                self.perturb(&mut state.xi, attempt as u64);
+            }
+            let cap =
+                if attempt + 1 == attempts { self.settings.max_iterations - share * (attempts - 1) } else { share };
+            let mut outcome = self.run_capped(prepared, state, cap, deadline);
+            iterations += outcome.iterations;
+            history.append(&mut outcome.history);
+            let done = outcome.stop != Stop::IterationCap;
+            if outcome.stop == Stop::Deadline {
+                best = Some(outcome);
+                break;
+            }
+            if best.as_ref().is_none_or(|b| done || outcome.primal < b.primal) {
+                best = Some(outcome);
+            }
+            if done {
+                break;
+            }
+        }
+        let mut outcome = best.expect("at least one attempt runs");
+        outcome.iterations = iterations;
+        outcome.attempts = attempts.min(history.len().max(1)).max(1);
+        outcome.history = history;
+        outcome
+    }
+
+    /// Runs the safety filter on `sample` from `init` (the sample itself and a
+    /// zero multiplier when `None`).
+    pub fn filter(&self, problem: &Problem, sample: &[f64], init: Option<AmState>) -> Result<AmOutcome, EngineError> {
+        let prepared = self.prepare(problem, Some(sample))?;
+        let state = match init {
+            Some(s) if s.xi.len() == self.coeff_len() && s.lambda.len() == self.coeff_len() => s,
+            Some(s) => {
+                return Err(EngineError::BadLength { expected: self.coeff_len(), got: s.xi.len().min(s.lambda.len()) });
+            }
+            None => self.cold_start(&prepared),
+        };
+        Ok(self.run(&prepared, state))
+    }
+
+    /// Iterates from `state` under the stopping rules of [`AmSettings`].
+    pub fn run(&self, prepared: &Prepared, state: AmState) -> AmOutcome {
+        self.run_capped(prepared, state, self.settings.max_iterations, None)
+    }
+
+    /// [`Self::run`] that also stops ([`Stop::Deadline`]) once `deadline`
+    /// has passed.
+    pub fn run_until(&self, prepared: &Prepared, state: AmState, deadline: Instant) -> AmOutcome {
+        self.run_capped(prepared, state, self.settings.max_iterations, Some(deadline))
+    }
+
+    fn run_capped(&self, prepared: &Prepared, mut state: AmState, cap: usize, deadline: Option<Instant>) -> AmOutcome {
+        let dim = self.team.dim;
+        let n = self.team.robots;
+        let mut projection = Projection::new(dim, n, &self.grid);
+        let mut work = self.work();
+        let mut history = Vec::new();
+        let mut iterations = 0;
+        let s = &self.settings;
+        loop {
+            let primal = projection.run(dim, n, &self.grid, &prepared.constraint, &state.xi);
+            let verifying = s.verify_every > 0;
+            let due = primal <= s.tolerance || iterations % s.verify_every.max(1) == 0 || iterations >= cap;
+            // Every update meets the boundary conditions; a given start
+            // (an SF sample) may not, and must not be returned as it is.
+            let acceptable = || iterations > 0 || self.meets_boundary(prepared, &state.xi);
+            let stop = if !verifying && primal <= s.tolerance && acceptable() {
+                Some(Stop::Tolerance)
+            } else if verifying && primal <= s.verify_below && due && acceptable() && self.verify(prepared, &state.xi) {
+                Some(Stop::Verified)
+            } else if iterations >= cap {
+                Some(Stop::IterationCap)
+            } else if deadline.is_some_and(|d| iterations % DEADLINE_CHECK_EVERY == 0 && Instant::now() >= d) {
+                Some(Stop::Deadline)
+            } else {
+                None
+            };
+            if let Some(stop) = stop {
+                if s.record_history {
+                    history.push(Residuals { primal, fixed_point: f64::NAN });
+                }
+                return AmOutcome { state, iterations, attempts: 1, stop, primal, history };
+            }
+            let level = s.rho.level_at(iterations, self.levels.len());
+            let fixed_point = self.update(prepared, &mut state, level, &projection, &mut work);
+            if s.record_history {
+                history.push(Residuals { primal, fixed_point });
+            }
+            iterations += 1;
+        }
+    }
+
+    /// The primal residual of `xi` (inflated sizes, constrained samples).
+    pub fn primal_residual(&self, prepared: &Prepared, xi: &[f64]) -> f64 {
+        let (dim, n) = (self.team.dim, self.team.robots);
+        Projection::new(dim, n, &self.grid).run(dim, n, &self.grid, &prepared.constraint, xi)
+    }
+
+    /// Whether `xi` keeps the true sizes and box on the dense grid: no
+    /// overlap at all, stricter than the success verdict's tolerance (the
+    /// boundary conditions hold for every iterate).
+    pub fn verify(&self, prepared: &Prepared, xi: &[f64]) -> bool {
+        let (dim, n) = (self.team.dim, self.team.robots);
+        Projection::new(dim, n, &self.dense).run(dim, n, &self.dense, &prepared.verify, xi) == 0.0
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    use super::*;
+    use crate::am::{AmSettings, Objective};
+    use crate::metrics::Metrics;
+    use crate::plan::JointPlan;
+    use crate::problem::{Dim, Team};
+    use crate::reference::SmoothReference;
+    use crate::scenario::RandomScenario;
+
+    fn optimiser(team: &Team, obstacles: usize) -> Engine {
+        Engine::new(team, obstacles, Objective::smoothness(), AmSettings::optimiser()).unwrap()
+    }
+
+    #[test]
+    fn the_optimiser_meets_the_boundary_conditions_from_a_moving_start() {
+        let team = Team::default_for(Dim::Two, 8);
+        let mut problem = RandomScenario::new(team.clone()).with_start_speed(0.4).generate(3).unwrap();
+        problem.starts[2].acceleration.x = 0.3;
+        let outcome = optimiser(&team, 0).solve(&problem).unwrap();
+        assert_eq!(outcome.stop, Stop::Verified);
+        let m = Metrics::measure(&problem, &JointPlan::new(&team, outcome.state.xi));
+        assert!(m.boundary_error < 1e-9, "boundary error {}", m.boundary_error);
+        assert!(m.success(team.separation().0));
+        assert!(m.min_clearance() >= 0.0, "verified plans keep the true sizes");
+    }
+
+    #[test]
+    fn a_passed_deadline_stops_the_optimiser_with_its_current_iterate() {
+        let team = Team::default_for(Dim::Two, 16);
+        let problem = RandomScenario::new(team.clone()).generate(5).unwrap();
+        let engine = optimiser(&team, 0);
+        let prepared = engine.prepare(&problem, None).unwrap();
+        assert!(!engine.verify(&prepared, &engine.cold_start(&prepared).xi), "the straight lines collide");
+        let outcome = engine.solve_prepared_until(&prepared, Some(Instant::now()));
+        assert_eq!(outcome.stop, Stop::Deadline);
+        assert_eq!(outcome.iterations, 0);
+        assert_eq!(outcome.state.xi, engine.cold_start(&prepared).xi);
+        let unhurried = engine.solve_prepared_until(&prepared, None);
+        assert_eq!(unhurried.stop, Stop::Verified);
+    }
+
+    #[test]
+    fn the_safety_filter_leaves_a_feasible_sample_alone() {
+        let team = Team::default_for(Dim::Two, 6);
+        let problem = RandomScenario::new(team.clone()).generate(4).unwrap();
+        let solved = optimiser(&team, 0).solve(&problem).unwrap().state.xi;
+        let sf = Engine::new(&team, 0, Objective::Projection, AmSettings::safety_filter()).unwrap();
+        let prepared = sf.prepare(&problem, Some(&solved)).unwrap();
+        // Verified before any iteration: returned unchanged.
+        let outcome = sf.run(&prepared, sf.cold_start(&prepared));
+        assert_eq!((outcome.iterations, outcome.stop), (0, Stop::Verified));
+        assert_eq!(outcome.state.xi, solved);
+    }
+
+    #[test]
+    fn the_safety_filter_never_returns_a_sample_that_breaks_the_boundary_conditions() {
+        let team = Team::default_for(Dim::Two, 6);
+        let problem = RandomScenario::new(team.clone()).generate(4).unwrap();
+        let mut sample = optimiser(&team, 0).solve(&problem).unwrap().state.xi;
+        sample[0] += 1e-3; // robot 0's first x coefficient: its start position
+        let sf = Engine::new(&team, 0, Objective::Projection, AmSettings::safety_filter()).unwrap();
+        let outcome = sf.filter(&problem, &sample, None).unwrap();
+        assert_eq!(outcome.stop, Stop::Verified);
+        assert!(outcome.iterations >= 1);
+        let m = Metrics::measure(&problem, &JointPlan::new(&team, outcome.state.xi));
+        assert!(m.boundary_error < 1e-9, "boundary error {}", m.boundary_error);
+    }
+
+    #[test]
+    fn the_safety_filter_repairs_a_perturbed_plan() {
+        let team = Team::default_for(Dim::Two, 16);
+        let problem = RandomScenario::new(team.clone()).generate(5).unwrap();
+        let solved = optimiser(&team, 0).solve(&problem).unwrap().state.xi;
+        let mut rng = ChaCha8Rng::seed_from_u64(1);
+        let sample: Vec<f64> = solved.iter().map(|x| x + 0.05 * rng.random_range(-1.0..=1.0)).collect();
+        let sf =
+            Engine::new(&team, 0, Objective::Projection, AmSettings::safety_filter().residual_study(0.01)).unwrap();
+        let prepared = sf.prepare(&problem, Some(&sample)).unwrap();
+        let before = sf.primal_residual(&prepared, &sample);
+        let outcome = sf.run(&prepared, sf.cold_start(&prepared));
+        assert_eq!(outcome.stop, Stop::Tolerance);
+        assert!(outcome.primal <= 0.01 && before > 0.01, "{before} -> {}", outcome.primal);
+        // Residual histories: one entry per iterate, the last not updated.
+        assert_eq!(outcome.history.len(), outcome.iterations + 1);
+        assert!(outcome.history.last().unwrap().fixed_point.is_nan());
+    }
+
+    /// A 16-robot instance and its smoothest straight curves, which collide.
+    fn colliding_sample() -> (Team, Problem, Vec<f64>) {
+        let team = Team::default_for(Dim::Two, 16);
+        let problem = RandomScenario::new(team.clone()).generate(5).unwrap();
+        let sample = SmoothReference::new(&team).unwrap().coefficients(&problem);
+        (team, problem, sample)
+    }
+
+    #[test]
+    fn the_smooth_projection_with_weight_zero_is_the_projection() {
+        let (team, problem, sample) = colliding_sample();
+        let run = |objective| {
+            let sf = Engine::new(&team, 0, objective, AmSettings::safety_filter()).unwrap();
+            sf.filter(&problem, &sample, None).unwrap()
+        };
+        let plain = run(Objective::Projection);
+        let weighted = run(Objective::SmoothProjection { weight: 0.0 });
+        assert!(plain.iterations > 0);
+        assert_eq!(plain.state, weighted.state);
+    }
+
+    #[test]
+    fn the_smooth_projection_repairs_with_smoother_detours() {
+        let (team, problem, sample) = colliding_sample();
+        let repair = |objective| {
+            let sf = Engine::new(&team, 0, objective, AmSettings::safety_filter()).unwrap();
+            let outcome = sf.filter(&problem, &sample, None).unwrap();
+            assert_eq!(outcome.stop, Stop::Verified, "{objective:?}");
+            let correction: Vec<f64> = outcome.state.xi.iter().zip(&sample).map(|(a, b)| a - b).collect();
+            let plan = JointPlan::new(&team, outcome.state.xi);
+            assert!(Metrics::measure(&problem, &plan).success(team.separation().0));
+            (JointPlan::new(&team, correction).smoothness(team.samples), plan.smoothness(team.samples))
+        };
+        let (plain_correction, plain) = repair(Objective::Projection);
+        let (smooth_correction, smooth) = repair(Objective::SmoothProjection { weight: 3.0 });
+        assert!(smooth_correction < 0.5 * plain_correction, "{smooth_correction} vs {plain_correction}");
+        assert!(smooth < plain, "{smooth} vs {plain}");
+    }
+
+    #[test]
+    fn solving_is_deterministic_including_restarts() {
+        let team = Team::default_for(Dim::Two, 16);
+        let problem = RandomScenario::new(team.clone()).with_obstacles(8).generate(16).unwrap();
+        let engine = optimiser(&team, 8);
+        let a = engine.solve(&problem).unwrap();
+        let b = engine.solve(&problem).unwrap();
+        assert_eq!(a.state, b.state);
+        assert_eq!((a.iterations, a.attempts, a.stop), (b.iterations, b.attempts, b.stop));
+    }
+}

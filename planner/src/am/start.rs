@@ -1,0 +1,244 @@
+//! Where iterations start: the optimiser's cold start (the smoothest curves,
+//! or routes around static obstacles), the SF's sample, the rerouting of SF
+//! samples through static obstacles, and the restarts' perturbation.
+
+use nalgebra::Vector3;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+use super::prepare::Prepared;
+use super::{AmState, Engine, EngineError, FIRST_CONSTRAINED_SAMPLE};
+use crate::basis::BOUNDARY_ROWS;
+use crate::plan::JointPlan;
+use crate::problem::Problem;
+use crate::route::{Blockers, route};
+
+/// Amplitude of a restart's perturbation of the interior coefficients, in
+/// robot separations.
+const RESTART_AMPLITUDE: f64 = 0.5;
+
+/// Repairs SF samples the way the optimiser's cold start avoids static
+/// obstacles: a robot whose curve passes through an inflated static
+/// obstacle at a constrained sample gets a curve along a route around the
+/// static obstacles instead ([`crate::route`]). Each robot is routed at
+/// most once, however many samples of the problem are repaired. A robot
+/// whose start or goal already lies within an inflated obstacle (a measured
+/// start in near-contact) is left to the filter: every curve of it would
+/// count as blocked.
+pub struct Rerouter<'e> {
+    engine: &'e Engine,
+    problem: &'e Problem,
+    blockers: Blockers,
+    boundary: Vec<f64>,
+    /// Per robot: its start or goal is within an inflated obstacle.
+    pinned: Vec<bool>,
+    /// Per robot: not routed yet, or its routed curve (`None`: walled off).
+    routes: Vec<Option<Option<Vec<f64>>>>,
+}
+
+impl Rerouter<'_> {
+    /// Reroutes the blocked robots of `xi` (the problem's coefficients,
+    /// `[axis][robot][coef]`); returns how many were rerouted.
+    ///
+    /// # Panics
+    /// If `xi` is not of the engine's length (the problem must be of the
+    /// engine's team: [`Engine::prepare`] checks it).
+    pub fn apply(&mut self, xi: &mut [f64]) -> usize {
+        assert_eq!(xi.len(), self.engine.coeff_len(), "coefficients of the engine's team");
+        if self.blockers.is_empty() {
+            return 0;
+        }
+        let e = self.engine;
+        let (n, axes, k) = (e.team.robots, e.team.dim.axes(), e.team.samples);
+        let positions = JointPlan::new(&e.team, xi.to_vec()).sampled(k, 0);
+        let mut count = 0;
+        for i in 0..n {
+            if self.pinned[i] {
+                continue;
+            }
+            let blocked = (FIRST_CONSTRAINED_SAMPLE..k).any(|s| {
+                let mut p = Vector3::zeros();
+                for a in 0..axes {
+                    p[a] = positions[(a * n + i) * k + s];
+                }
+                self.blockers.blocks(&p)
+            });
+            if !blocked {
+                continue;
+            }
+            let route =
+                self.routes[i].get_or_insert_with(|| e.routed_curve(self.problem, &self.blockers, &self.boundary, i));
+            if let Some(curve) = route {
+                set_curve(xi, curve, n, e.n_xi, i);
+                count += 1;
+            }
+        }
+        count
+    }
+}
+
+/// Writes robot `i`'s `curve` (`[axis][coef]`, `nx` per axis) into the
+/// coefficients `xi` of a team of `n` (`[axis][robot][coef]`).
+fn set_curve(xi: &mut [f64], curve: &[f64], n: usize, nx: usize, i: usize) {
+    for (a, c) in curve.chunks_exact(nx).enumerate() {
+        xi[(a * n + i) * nx..(a * n + i + 1) * nx].copy_from_slice(c);
+    }
+}
+
+impl Engine {
+    /// The optimiser's cold start: per robot the smoothest curve meeting the
+    /// boundary conditions, or, with `routed_start`, a fitted route around the
+    /// static obstacles when its straight segment crosses one.
+    pub(super) fn smooth_start(&self, problem: &Problem, b: &[f64]) -> Vec<f64> {
+        let n = self.team.robots;
+        let nx = self.n_xi;
+        let mut xi = vec![0.0; self.coeff_len()];
+        for (row, bv) in xi.chunks_exact_mut(nx).zip(b.chunks_exact(BOUNDARY_ROWS)) {
+            self.reference.curve(bv, row);
+        }
+        if !self.settings.routed_start {
+            return xi;
+        }
+        let blockers = self.blockers(problem);
+        if blockers.is_empty() {
+            return xi;
+        }
+        for i in 0..n {
+            let (start, goal) = (problem.starts[i].position, problem.goals[i]);
+            if !blockers.segment_blocked(&start, &goal) {
+                continue;
+            }
+            if let Some(curve) = self.routed_curve(problem, &blockers, b, i) {
+                set_curve(&mut xi, &curve, n, nx, i);
+            }
+        }
+        xi
+    }
+
+    /// The static obstacles of `problem` inflated by the robot size and the
+    /// safety margin, for routing.
+    fn blockers(&self, problem: &Problem) -> Blockers {
+        Blockers::new(&self.team, &problem.obstacles, self.settings.margin, 0.0)
+    }
+
+    /// Robot `i`'s curve along a route around `blockers` meeting its
+    /// boundary values (from `b`, [`Problem::boundary_values`]), `[axis][coef]`;
+    /// `None` when its goal is walled off on the routing grid.
+    fn routed_curve(&self, problem: &Problem, blockers: &Blockers, b: &[f64], i: usize) -> Option<Vec<f64>> {
+        let (n, nx) = (self.team.robots, self.n_xi);
+        let path = route(&self.team, blockers, &problem.starts[i].position, &problem.goals[i])?;
+        let mut curve = vec![0.0; self.team.dim.axes() * nx];
+        for (a, q) in self.fitter.timed_samples(&path, self.team.dim.axes()).iter().enumerate() {
+            let row = a * n + i;
+            self.fitter.fit(q, &b[row * BOUNDARY_ROWS..(row + 1) * BOUNDARY_ROWS], &mut curve[a * nx..(a + 1) * nx]);
+        }
+        Some(curve)
+    }
+
+    /// A [`Rerouter`] for `problem`, which must have the engine's team and
+    /// obstacle count ([`EngineError::ShapeMismatch`] otherwise).
+    pub fn rerouter<'e>(&'e self, problem: &'e Problem) -> Result<Rerouter<'e>, EngineError> {
+        self.check_shape(problem)?;
+        let blockers = self.blockers(problem);
+        let pinned = problem
+            .starts
+            .iter()
+            .zip(&problem.goals)
+            .map(|(s, g)| blockers.blocks(&s.position) || blockers.blocks(g))
+            .collect();
+        Ok(Rerouter {
+            engine: self,
+            problem,
+            blockers,
+            boundary: problem.boundary_values(),
+            pinned,
+            routes: vec![None; problem.robots()],
+        })
+    }
+
+    /// The cold start with a zero multiplier: for the optimiser see
+    /// [`AmSettings::routed_start`], for the SF the sample itself.
+    pub fn cold_start(&self, prepared: &Prepared) -> AmState {
+        AmState { xi: prepared.cold.clone(), lambda: vec![0.0; self.coeff_len()] }
+    }
+
+    /// Seeded uniform perturbation of the interior coefficients (those the
+    /// boundary rows do not touch), so the boundary conditions still hold.
+    pub(super) fn perturb(&self, xi: &mut [f64], seed: u64) {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let amplitude = RESTART_AMPLITUDE * self.team.separation().0;
+        let interior = BOUNDARY_ROWS / 2..self.n_xi - BOUNDARY_ROWS / 2;
+        for row in xi.chunks_exact_mut(self.n_xi) {
+            for x in &mut row[interior.clone()] {
+                *x += amplitude * rng.random_range(-1.0..=1.0);
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::am::{AmSettings, Objective};
+    use crate::metrics::Metrics;
+    use crate::problem::{Dim, Team};
+
+    #[test]
+    fn the_rerouter_moves_only_robots_that_cross_a_static_obstacle() {
+        use crate::problem::{Obstacle, Spheroid, StartState};
+        let team = Team::default_for(Dim::Two, 2);
+        let at = |x: f64, y: f64| Vector3::new(x, y, 0.0);
+        let problem = Problem {
+            team: team.clone(),
+            starts: vec![StartState::at_rest(at(-0.8, 0.0)), StartState::at_rest(at(-0.8, 0.7))],
+            goals: vec![at(0.8, 0.0), at(0.8, 0.7)],
+            obstacles: vec![Obstacle {
+                position: at(0.0, 0.02),
+                velocity: Vector3::zeros(),
+                shape: Spheroid::ball(0.2),
+            }],
+        };
+        let engine = Engine::new(&team, 1, Objective::filter(3.0), AmSettings::safety_filter()).unwrap();
+        // Straight lines (the SF routes no cold start): robot 0 crosses the
+        // obstacle, robot 1 passes above it.
+        let mut xi = engine.smooth_start(&problem, &problem.boundary_values());
+        let before = xi.clone();
+        let mut rerouter = engine.rerouter(&problem).unwrap();
+        assert_eq!(rerouter.apply(&mut xi), 1);
+        let nx = team.degree + 1;
+        for a in 0..2 {
+            let row = (a * 2 + 1) * nx..(a * 2 + 2) * nx;
+            assert_eq!(xi[row.clone()], before[row], "robot 1 keeps its curve");
+        }
+        let m = Metrics::measure(&problem, &JointPlan::new(&team, xi.clone()));
+        assert!(m.boundary_error < 1e-9, "the route keeps the boundary conditions: {}", m.boundary_error);
+        assert!(m.min_obstacle_clearance > 0.0, "the route clears the obstacle: {}", m.min_obstacle_clearance);
+        let once = xi.clone();
+        rerouter.apply(&mut xi);
+        assert_eq!(xi, once, "rerouting twice changes nothing");
+    }
+
+    #[test]
+    fn the_rerouter_leaves_near_contact_robots_and_refuses_other_teams() {
+        use crate::problem::{Obstacle, Spheroid, StartState};
+        let team = Team::default_for(Dim::Two, 1);
+        let at = |x: f64, y: f64| Vector3::new(x, y, 0.0);
+        let ball = Spheroid::ball(0.2);
+        let engine = Engine::new(&team, 1, Objective::filter(3.0), AmSettings::safety_filter()).unwrap();
+        // The start touches the obstacle within the safety margin (scaled
+        // distance 1.02 < 1.05) and the straight line runs past it.
+        let (a, _) = team.obstacle_separation(&ball);
+        let problem = Problem {
+            team: team.clone(),
+            starts: vec![StartState::at_rest(at(-0.5, 0.0))],
+            goals: vec![at(0.8, 0.0)],
+            obstacles: vec![Obstacle { position: at(-0.5 - 1.02 * a, 0.0), velocity: Vector3::zeros(), shape: ball }],
+        };
+        let mut xi = engine.smooth_start(&problem, &problem.boundary_values());
+        let before = xi.clone();
+        assert_eq!(engine.rerouter(&problem).unwrap().apply(&mut xi), 0);
+        assert_eq!(xi, before);
+        let other = Problem { team: Team::default_for(Dim::Two, 2), ..problem };
+        assert!(matches!(engine.rerouter(&other), Err(EngineError::ShapeMismatch { .. })));
+    }
+}
