@@ -1,8 +1,8 @@
 //! One team's planner: every problem (a validated snapshot) is planned
 //! from its own measured state, warm-started from the previous plan when
 //! the goals are unchanged and cold otherwise, within a deadline. It knows
-//! nothing of the wire: the worker ([`crate::serve()`]) converts snapshots
-//! into problems and writes the replies.
+//! nothing of the wire: the daemon's worker converts snapshots into
+//! problems and writes the replies.
 //!
 //! - **Warm start.** The previous plan, shifted by the time between the two
 //!   snapshots ([`JointPlan::shifted`]), is the safety filter's sample; a

@@ -2,8 +2,8 @@
 //! shape, the boundary part of the xi-step per penalty level, the cost's
 //! linear term, and the limits the projection and the verification check.
 
+use super::engine::{Engine, EngineError, Objective};
 use super::projection::Limits;
-use super::{Engine, EngineError, Objective};
 use crate::basis::BOUNDARY_ROWS;
 use crate::kkt::TeamKkt;
 use crate::linalg::{Accum, dot, gemm};

@@ -4,10 +4,10 @@
 
 use std::time::Instant;
 
+use super::engine::{AmOutcome, AmState, Engine, EngineError, Residuals};
 use super::prepare::Prepared;
 use super::projection::Projection;
 use super::settings::Stop;
-use super::{AmOutcome, AmState, Engine, EngineError, Residuals};
 use crate::problem::Problem;
 
 /// Iterations between two deadline checks (a clock read costs about as

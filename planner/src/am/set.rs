@@ -2,7 +2,8 @@
 //! the unit a daemon preloads and a benchmark reuses (building an engine
 //! factors its KKT systems, a start-up cost rather than a per-plan one).
 
-use super::{AmSettings, Engine, EngineError, Objective};
+use super::engine::{Engine, EngineError, Objective};
+use super::settings::AmSettings;
 use crate::problem::Team;
 
 /// The engines of one (team, objective, settings), indexed by obstacle

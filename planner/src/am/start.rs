@@ -6,8 +6,8 @@ use nalgebra::Vector3;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
+use super::engine::{AmState, Engine, EngineError, FIRST_CONSTRAINED_SAMPLE};
 use super::prepare::Prepared;
-use super::{AmState, Engine, EngineError, FIRST_CONSTRAINED_SAMPLE};
 use crate::basis::BOUNDARY_ROWS;
 use crate::plan::JointPlan;
 use crate::problem::Problem;

@@ -3,9 +3,9 @@
 //! per-iteration benchmarks time) and [`StepOperators`] exposes its linear
 //! pieces to code that re-implements it.
 
+use super::engine::{AmState, Engine, Residuals};
 use super::prepare::Prepared;
 use super::projection::Projection;
-use super::{AmState, Engine, Residuals};
 use crate::kkt::WORKSPACE_WEIGHT;
 use crate::linalg::{Accum, dot, gemm};
 
