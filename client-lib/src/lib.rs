@@ -8,9 +8,13 @@
 //! - [`ports`]: [`Endpoint`] (one iceoryx2 node) and the four ports:
 //!   [`StatePublisher`] and [`PlanSubscriber`] for controllers,
 //!   [`StateSubscriber`] and [`PlanPublisher`] for the daemon;
+//! - [`follow`]: the followability contract on the controller's side:
+//!   which verified trajectory to follow now ([`Follower`]);
 //! - [`clock`]: the monotonic clock every timestamp is read from.
 //!
-//! A controller publishes its measured state and waits for the newest plan:
+//! A controller publishes its measured state, takes the newest plan message
+//! and follows what the contract says (a verified trajectory, or none:
+//! bring the robots to rest):
 //!
 //! ```no_run
 //! use std::time::Duration;
@@ -20,28 +24,35 @@
 //! let endpoint = Endpoint::new("my-controller")?;
 //! let channel = TeamChannel::new("flowopt", "default")?;
 //! let mut states = endpoint.state_publisher(&channel)?;
-//! let plans = endpoint.plan_subscriber(&channel)?;
+//! let mut plans = endpoint.plan_subscriber(&channel)?;
 //! states.publish_with(|s| {
 //!     s.dim = 2;
 //!     s.robots = 1;
 //!     s.robot[0].position = [-0.5, 0.0, 0.0];
 //!     s.robot[0].goal = [0.5, 0.0, 0.0];
 //! })?;
-//! if let Some(plan) = plans.wait(Duration::from_millis(100))? {
-//!     let now = plan.elapsed_s(flowopt_client::clock::monotonic_ns());
-//!     let robot0 = plan.sample_robot(0, now)?;
-//!     println!("{:?} -> {:?}", plan.status, robot0.position);
+//! if let Some(msg) = plans.wait(Duration::from_millis(100))? {
+//!     println!("status {:?}, reason {:?}", msg.status(), msg.reason());
+//! }
+//! match plans.to_follow() {
+//!     Some(followed) => {
+//!         let now = followed.at(flowopt_client::clock::monotonic_ns());
+//!         println!("robot 0 should be at {:?}", now[0].position);
+//!     }
+//!     None => println!("no verified plan: bring the robots to rest"),
 //! }
 //! # Ok(())
 //! # }
 //! ```
 
 pub mod clock;
+pub mod follow;
 pub mod messages;
 pub mod ports;
 
 use thiserror::Error;
 
+pub use follow::{Followed, Follower};
 pub use messages::{
     JointTrajectory, MAX_COEFFS, MAX_OBSTACLES, MAX_ROBOTS, MessageError, ObstacleState, PlanStatus, Reason,
     RobotState, StageTimings, StateSnapshot, TEAM_NAME_LEN, WIRE_VERSION,

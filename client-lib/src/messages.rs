@@ -14,7 +14,7 @@ use iceoryx2::prelude::ZeroCopySend;
 use thiserror::Error;
 
 /// Robots per team a message can carry.
-pub const MAX_ROBOTS: usize = 64;
+pub const MAX_ROBOTS: usize = 256;
 /// Obstacles a snapshot can carry.
 pub const MAX_OBSTACLES: usize = 16;
 /// Bernstein coefficients per robot and axis a plan can carry (degree <= 15).
@@ -22,7 +22,7 @@ pub const MAX_COEFFS: usize = 16;
 /// Bytes of the team name (UTF-8, NUL-padded).
 pub const TEAM_NAME_LEN: usize = 32;
 /// Layout version written into every message; bumped on any layout change.
-pub const WIRE_VERSION: u32 = 1;
+pub const WIRE_VERSION: u32 = 2;
 
 /// Why a message could not be written or read.
 #[derive(Debug, Clone, PartialEq, Error)]
@@ -36,6 +36,9 @@ pub enum MessageError {
     /// A plan message with an impossible shape.
     #[error("MessageError::Shape: the plan message has an invalid {0}")]
     Shape(&'static str),
+    /// A status or reason value no daemon writes.
+    #[error("MessageError::Field: the message's {0} has a value no daemon writes")]
+    Field(&'static str),
     /// Sampling a robot the plan does not have.
     #[error("MessageError::RobotOutOfRange: robot {robot} out of range: the plan has {robots}")]
     RobotOutOfRange {
@@ -106,36 +109,53 @@ pub struct StateSnapshot {
     pub robots: u32,
     /// Obstacles in use, `0..=MAX_OBSTACLES`.
     pub obstacles: u32,
-    /// Robots `0..robots`.
-    pub robot: [RobotState; MAX_ROBOTS],
     /// Obstacles `0..obstacles`.
     pub obstacle: [ObstacleState; MAX_OBSTACLES],
+    /// Robots `0..robots` (last, so that a message's used part is a prefix).
+    pub robot: [RobotState; MAX_ROBOTS],
 }
 
-/// What a plan message carries.
-#[repr(C)]
-#[derive(Debug, Clone, Copy, PartialEq, Eq, ZeroCopySend)]
-#[type_name("flowopt::PlanStatus")]
+/// Which trajectory a plan message tells the controllers to follow from
+/// now on (the followability contract, `docs/MESSAGES.md`). On the wire it
+/// is a `u32` ([`JointTrajectory::status`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum PlanStatus {
-    /// No plan could be made (an internal failure; see `reason`).
+    /// There is no verified trajectory to follow: bring the robots to rest
+    /// by your own means (`reason` says why).
     NoPlan = 0,
-    /// A plan verified collision-free at the true sizes on a dense grid.
+    /// A new plan, verified from the state this message answers.
     Ok = 1,
-    /// The solver's best iterate after its iteration cap: not verified.
-    Degraded = 2,
-    /// The deadline passed: the best iterate so far, not verified.
-    DeadlineMissed = 3,
-    /// The snapshot was invalid (`reason`, `reason_index`); no plan.
-    RejectedInput = 4,
-    /// No snapshot arrived within the configured time; the last plan is
-    /// repeated unchanged.
-    Stale = 5,
+    /// The last verified plan, re-issued unchanged (same time origin): no
+    /// new one could be made or accepted (`reason` says why).
+    Held = 2,
+    /// A verified plan that brings every robot to rest along its motion:
+    /// the robots had left the held plan (`reason` says what else failed).
+    Stopping = 3,
 }
 
-/// Why a snapshot was rejected (or why there is no plan).
-#[repr(C)]
-#[derive(Debug, Clone, Copy, PartialEq, Eq, ZeroCopySend)]
-#[type_name("flowopt::Reason")]
+impl PlanStatus {
+    /// The status with wire value `value`.
+    pub fn from_wire(value: u32) -> Result<Self, MessageError> {
+        Ok(match value {
+            0 => Self::NoPlan,
+            1 => Self::Ok,
+            2 => Self::Held,
+            3 => Self::Stopping,
+            _ => return Err(MessageError::Field("status")),
+        })
+    }
+
+    /// Whether a message with this status carries a verified trajectory
+    /// to follow.
+    pub fn followable(self) -> bool {
+        matches!(self, Self::Ok | Self::Held | Self::Stopping)
+    }
+}
+
+/// Why a message is not a new plan: the snapshot was rejected (codes 1-13
+/// and 16-18), or the plan could not be made or verified (14, 15, 19-22).
+/// On the wire it is a `u32` ([`JointTrajectory::reason`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Reason {
     /// Nothing to report.
     None = 0,
@@ -152,7 +172,8 @@ pub enum Reason {
     /// A NaN or infinite number (`reason_index`: the robot, or
     /// `MAX_ROBOTS + obstacle`).
     NonFinite = 6,
-    /// An obstacle size is not positive (`reason_index`: the obstacle).
+    /// An obstacle size is not positive (`reason_index`: `MAX_ROBOTS +
+    /// obstacle`).
     NonPositiveSize = 7,
     /// Two starts overlap (`reason_index`: the first robot).
     StartsOverlap = 8,
@@ -170,6 +191,60 @@ pub enum Reason {
     StaleState = 14,
     /// The planner failed internally.
     Solver = 15,
+    /// `timestamp_ns` is outside the accepted window around the daemon's
+    /// clock (older than the stale limit, or ahead by more than the skew).
+    Clock = 16,
+    /// `sequence` does not increase over the publisher's last accepted one
+    /// (or is `u64::MAX`).
+    Sequence = 17,
+    /// A speed beyond what the robots can do (`reason_index`: the robot).
+    Implausible = 18,
+    /// No plan verified within the deadline (planning goes on).
+    DeadlineMissed = 19,
+    /// The planner's plan did not verify.
+    NotVerified = 20,
+    /// The measured state has left the held plan: it is no longer safe.
+    NotFollowing = 21,
+    /// The verified plan exceeds the robots' speed or acceleration limits.
+    Limits = 22,
+}
+
+impl Reason {
+    /// The reason with wire value `value`.
+    pub fn from_wire(value: u32) -> Result<Self, MessageError> {
+        use Reason::*;
+        const ALL: [Reason; 23] = [
+            None,
+            Version,
+            Team,
+            Dimension,
+            RobotCount,
+            ObstacleCount,
+            NonFinite,
+            NonPositiveSize,
+            StartsOverlap,
+            GoalsOverlap,
+            StartInObstacle,
+            GoalInObstacle,
+            StartOutsideWorkspace,
+            GoalOutsideWorkspace,
+            StaleState,
+            Solver,
+            Clock,
+            Sequence,
+            Implausible,
+            DeadlineMissed,
+            NotVerified,
+            NotFollowing,
+            Limits,
+        ];
+        ALL.get(value as usize).copied().ok_or(MessageError::Field("reason"))
+    }
+
+    /// Whether this reason rejects the snapshot (which then changed nothing).
+    pub fn is_rejection(self) -> bool {
+        matches!(self as u32, 1..=13 | 16..=18)
+    }
 }
 
 /// Time spent in each planning stage (microseconds; 0 for a stage not run).
@@ -199,18 +274,21 @@ pub struct StageTimings {
     pub total_us: u32,
 }
 
-/// Daemon to controllers: a joint plan answering one snapshot.
+/// Daemon to controllers: the answer to one snapshot, carrying the
+/// trajectory to follow from now on (the followability contract,
+/// `docs/MESSAGES.md`): when [`PlanStatus::followable`], the coefficients
+/// with their time origin `plan_origin_ns` were verified by the daemon;
+/// otherwise there is none.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
 #[type_name("flowopt::JointTrajectory")]
 pub struct JointTrajectory {
     /// [`WIRE_VERSION`] of the writer.
     pub version: u32,
-    /// What this message carries.
-    pub status: PlanStatus,
-    /// Why, for [`PlanStatus::RejectedInput`], [`PlanStatus::NoPlan`] and
-    /// [`PlanStatus::Stale`].
-    pub reason: Reason,
+    /// [`PlanStatus`] as a `u32`: what to follow ([`Self::status`]).
+    pub status: u32,
+    /// [`Reason`] as a `u32`: why this is not a new plan ([`Self::reason`]).
+    pub reason: u32,
     /// The robot or obstacle the reason points at (`u32::MAX`: none).
     pub reason_index: u32,
     /// Team name (UTF-8, NUL-padded).
@@ -221,29 +299,39 @@ pub struct JointTrajectory {
     pub robots: u32,
     /// Bernstein degree (coefficients per robot and axis: `degree + 1`).
     pub degree: u32,
-    /// Safety-filter / optimiser iterations spent.
+    /// Safety-filter / optimiser iterations spent on this answer.
     pub iterations: u32,
-    /// `sequence` of the snapshot this plan starts from.
+    /// `sequence` of the snapshot this message answers.
     pub answers_sequence: u64,
-    /// `timestamp_ns` of that snapshot: the plan's time origin.
+    /// `timestamp_ns` of that snapshot.
     pub state_timestamp_ns: u64,
-    /// When the daemon received that snapshot.
+    /// `sequence` of the snapshot the carried plan was made from (equal to
+    /// `answers_sequence` for [`PlanStatus::Ok`]).
+    pub plan_sequence: u64,
+    /// The carried plan's time origin: its `t = 0` (the `timestamp_ns` of
+    /// the snapshot it was made from).
+    pub plan_origin_ns: u64,
+    /// When the daemon received the answered snapshot.
     pub received_ns: u64,
     /// When the daemon published this message.
     pub published_ns: u64,
     /// Horizon T (s): robots reach their goals at rest at
-    /// `state_timestamp_ns + T`.
+    /// `plan_origin_ns + T`.
     pub horizon: f64,
     /// Primal residual of the plan at the (inflated) constraint samples (m).
     pub primal_residual: f64,
     /// Smoothness: mean over robots of the summed squared acceleration at
     /// the K samples (m^2/s^4), as `flowopt_planner::metrics`.
     pub smoothness: f64,
+    /// Largest speed of any robot along the plan (m/s).
+    pub max_speed: f64,
+    /// Largest acceleration of any robot along the plan (m/s^2).
+    pub max_acceleration: f64,
     /// 1 when warm-started from the previous plan, 0 for a cold plan.
     pub warm_started: u32,
     /// Candidates refined (1 for the optimiser and warm starts).
     pub candidates: u32,
-    /// Per-stage timings.
+    /// Per-stage timings of this answer.
     pub timings: StageTimings,
     /// Coefficients `[robot][axis][coef]`, the first `degree + 1` used.
     pub coeffs: [[[f64; MAX_COEFFS]; 3]; MAX_ROBOTS],
@@ -283,8 +371,8 @@ impl StateSnapshot {
             timestamp_ns: 0,
             robots: 0,
             obstacles: 0,
-            robot: [RobotState::default(); MAX_ROBOTS],
             obstacle: [ObstacleState::default(); MAX_OBSTACLES],
+            robot: [RobotState::default(); MAX_ROBOTS],
         }
     }
 
@@ -330,20 +418,13 @@ impl Default for StateSnapshot {
     }
 }
 
-impl PlanStatus {
-    /// Whether a message with this status carries coefficients.
-    pub fn has_plan(self) -> bool {
-        matches!(self, Self::Ok | Self::Degraded | Self::DeadlineMissed | Self::Stale)
-    }
-}
-
 impl JointTrajectory {
     /// An empty message of the current version: no plan.
     pub fn new() -> Self {
         Self {
             version: WIRE_VERSION,
-            status: PlanStatus::NoPlan,
-            reason: Reason::None,
+            status: PlanStatus::NoPlan as u32,
+            reason: Reason::None as u32,
             reason_index: u32::MAX,
             team: [0; TEAM_NAME_LEN],
             dim: 0,
@@ -352,16 +433,40 @@ impl JointTrajectory {
             iterations: 0,
             answers_sequence: 0,
             state_timestamp_ns: 0,
+            plan_sequence: 0,
+            plan_origin_ns: 0,
             received_ns: 0,
             published_ns: 0,
             horizon: 0.0,
             primal_residual: 0.0,
             smoothness: 0.0,
+            max_speed: 0.0,
+            max_acceleration: 0.0,
             warm_started: 0,
             candidates: 0,
             timings: StageTimings::default(),
             coeffs: [[[0.0; MAX_COEFFS]; 3]; MAX_ROBOTS],
         }
+    }
+
+    /// What to follow; an error for a value no daemon writes.
+    pub fn status(&self) -> Result<PlanStatus, MessageError> {
+        PlanStatus::from_wire(self.status)
+    }
+
+    /// Why this is not a new plan; an error for a value no daemon writes.
+    pub fn reason(&self) -> Result<Reason, MessageError> {
+        Reason::from_wire(self.reason)
+    }
+
+    /// Sets the status.
+    pub fn set_status(&mut self, status: PlanStatus) {
+        self.status = status as u32;
+    }
+
+    /// Sets the reason.
+    pub fn set_reason(&mut self, reason: Reason) {
+        self.reason = reason as u32;
     }
 
     /// Sets the team name.
@@ -374,11 +479,11 @@ impl JointTrajectory {
         read_name(&self.team)
     }
 
-    /// Seconds from the plan's time origin (the answered state's timestamp)
-    /// to `now_ns` ([`crate::clock::monotonic_ns`]); negative if `now_ns` is
+    /// Seconds from the carried plan's time origin (`plan_origin_ns`) to
+    /// `now_ns` ([`crate::clock::monotonic_ns`]); negative if `now_ns` is
     /// earlier.
     pub fn elapsed_s(&self, now_ns: u64) -> f64 {
-        (now_ns as i128 - self.state_timestamp_ns as i128) as f64 * 1e-9
+        (now_ns as i128 - self.plan_origin_ns as i128) as f64 * 1e-9
     }
 
     /// Writes `plan`'s shape and coefficients.
@@ -439,10 +544,15 @@ impl JointTrajectory {
     }
 
     fn shape(&self) -> Result<(Dim, usize, usize), MessageError> {
-        if !self.status.has_plan() {
-            return Err(MessageError::NoPlan(self.status));
+        let status = self.status()?;
+        if !status.followable() {
+            return Err(MessageError::NoPlan(status));
         }
-        let dim = Dim::try_from(self.dim as u8).map_err(|_| MessageError::Shape("dim"))?;
+        let dim = match self.dim {
+            2 => Dim::Two,
+            3 => Dim::Three,
+            _ => return Err(MessageError::Shape("dim")),
+        };
         let robots = self.robots as usize;
         let nx = self.degree as usize + 1;
         if robots == 0 || robots > MAX_ROBOTS {
@@ -469,38 +579,50 @@ mod tests {
     use super::*;
     use core::mem::{offset_of, size_of};
     use flowopt_planner::problem::Team;
+    use flowopt_planner::scenario::RandomScenario;
 
     /// The offsets documented in docs/MESSAGES.md.
     #[test]
     fn the_byte_layout_is_the_documented_one() {
         assert_eq!(size_of::<RobotState>(), 72);
         assert_eq!(size_of::<ObstacleState>(), 64);
+        assert_eq!(offset_of!(StateSnapshot, dim), 4);
         assert_eq!(offset_of!(StateSnapshot, team), 8);
         assert_eq!(offset_of!(StateSnapshot, sequence), 40);
         assert_eq!(offset_of!(StateSnapshot, timestamp_ns), 48);
         assert_eq!(offset_of!(StateSnapshot, robots), 56);
         assert_eq!(offset_of!(StateSnapshot, obstacles), 60);
-        assert_eq!(offset_of!(StateSnapshot, robot), 64);
-        assert_eq!(offset_of!(StateSnapshot, obstacle), 4672);
-        assert_eq!(size_of::<StateSnapshot>(), 5696);
+        assert_eq!(offset_of!(StateSnapshot, obstacle), 64);
+        assert_eq!(offset_of!(StateSnapshot, robot), 1088);
+        assert_eq!(size_of::<StateSnapshot>(), 1088 + 72 * MAX_ROBOTS);
+        assert_eq!(size_of::<StateSnapshot>(), 19520);
 
-        assert_eq!(size_of::<PlanStatus>(), 4);
-        assert_eq!(size_of::<Reason>(), 4);
         assert_eq!(size_of::<StageTimings>(), 40);
         assert_eq!(offset_of!(JointTrajectory, status), 4);
         assert_eq!(offset_of!(JointTrajectory, reason), 8);
         assert_eq!(offset_of!(JointTrajectory, reason_index), 12);
         assert_eq!(offset_of!(JointTrajectory, team), 16);
         assert_eq!(offset_of!(JointTrajectory, dim), 48);
+        assert_eq!(offset_of!(JointTrajectory, robots), 52);
+        assert_eq!(offset_of!(JointTrajectory, degree), 56);
         assert_eq!(offset_of!(JointTrajectory, iterations), 60);
         assert_eq!(offset_of!(JointTrajectory, answers_sequence), 64);
-        assert_eq!(offset_of!(JointTrajectory, published_ns), 88);
-        assert_eq!(offset_of!(JointTrajectory, horizon), 96);
-        assert_eq!(offset_of!(JointTrajectory, smoothness), 112);
-        assert_eq!(offset_of!(JointTrajectory, warm_started), 120);
-        assert_eq!(offset_of!(JointTrajectory, timings), 128);
-        assert_eq!(offset_of!(JointTrajectory, coeffs), 168);
-        assert_eq!(size_of::<JointTrajectory>(), 24744);
+        assert_eq!(offset_of!(JointTrajectory, state_timestamp_ns), 72);
+        assert_eq!(offset_of!(JointTrajectory, plan_sequence), 80);
+        assert_eq!(offset_of!(JointTrajectory, plan_origin_ns), 88);
+        assert_eq!(offset_of!(JointTrajectory, received_ns), 96);
+        assert_eq!(offset_of!(JointTrajectory, published_ns), 104);
+        assert_eq!(offset_of!(JointTrajectory, horizon), 112);
+        assert_eq!(offset_of!(JointTrajectory, primal_residual), 120);
+        assert_eq!(offset_of!(JointTrajectory, smoothness), 128);
+        assert_eq!(offset_of!(JointTrajectory, max_speed), 136);
+        assert_eq!(offset_of!(JointTrajectory, max_acceleration), 144);
+        assert_eq!(offset_of!(JointTrajectory, warm_started), 152);
+        assert_eq!(offset_of!(JointTrajectory, candidates), 156);
+        assert_eq!(offset_of!(JointTrajectory, timings), 160);
+        assert_eq!(offset_of!(JointTrajectory, coeffs), 200);
+        assert_eq!(size_of::<JointTrajectory>(), 200 + 384 * MAX_ROBOTS);
+        assert_eq!(size_of::<JointTrajectory>(), 98504);
     }
 
     #[test]
@@ -508,9 +630,24 @@ mod tests {
         // SAFETY: checking the module's claim that all-zero bytes are a
         // valid value of both messages.
         let plan: JointTrajectory = unsafe { core::mem::zeroed() };
-        assert_eq!(plan.status, PlanStatus::NoPlan);
-        assert_eq!(plan.reason, Reason::None);
+        assert_eq!(plan.status(), Ok(PlanStatus::NoPlan));
+        assert_eq!(plan.reason(), Ok(Reason::None));
         assert!(plan.sample(0.0).is_err());
+    }
+
+    #[test]
+    fn wire_values_round_trip_and_unknown_ones_are_errors() {
+        for value in 0..4 {
+            assert_eq!(PlanStatus::from_wire(value).map(|s| s as u32), Ok(value));
+        }
+        for value in 0..23 {
+            assert_eq!(Reason::from_wire(value).map(|r| r as u32), Ok(value));
+        }
+        assert_eq!(PlanStatus::from_wire(4), Err(MessageError::Field("status")));
+        assert_eq!(Reason::from_wire(23), Err(MessageError::Field("reason")));
+        assert!(Reason::NonFinite.is_rejection() && Reason::Clock.is_rejection() && Reason::Implausible.is_rejection());
+        assert!(!Reason::DeadlineMissed.is_rejection() && !Reason::StaleState.is_rejection());
+        assert!(PlanStatus::Held.followable() && PlanStatus::Stopping.followable() && !PlanStatus::NoPlan.followable());
     }
 
     #[test]
@@ -520,7 +657,7 @@ mod tests {
         let coeffs: Vec<f64> = (0..3 * 3 * nx).map(|k| ((k * 7) % 11) as f64 * 0.1 - 0.5).collect();
         let plan = JointPlan::new(&team, coeffs);
         let mut msg = JointTrajectory::new();
-        msg.status = PlanStatus::Ok;
+        msg.set_status(PlanStatus::Ok);
         msg.write_plan(&plan).unwrap();
         assert_eq!(msg.plan().unwrap(), plan);
         for t in [0.0, 1.3, 4.9, 7.0] {
@@ -540,15 +677,39 @@ mod tests {
     fn malformed_plan_messages_give_typed_errors() {
         let mut msg = JointTrajectory::new();
         assert!(matches!(msg.sample(0.0), Err(MessageError::NoPlan(PlanStatus::NoPlan))));
-        msg.status = PlanStatus::Ok;
+        msg.status = 9;
+        assert!(matches!(msg.sample(0.0), Err(MessageError::Field("status"))));
+        msg.set_status(PlanStatus::Held);
         msg.dim = 4;
         assert!(matches!(msg.sample(0.0), Err(MessageError::Shape("dim"))));
+        msg.dim = 258;
+        assert!(matches!(msg.sample(0.0), Err(MessageError::Shape("dim"))), "no truncation to 2");
         msg.dim = 2;
         msg.robots = MAX_ROBOTS as u32 + 1;
         assert!(matches!(msg.sample(0.0), Err(MessageError::Shape("robots"))));
         msg.robots = 2;
         msg.degree = MAX_COEFFS as u32;
         assert!(matches!(msg.sample(0.0), Err(MessageError::Shape("degree"))));
+    }
+
+    #[test]
+    fn a_problem_written_into_a_snapshot_keeps_every_field() {
+        let team = Team::default_for(Dim::Three, 5);
+        let problem = RandomScenario::new(team).with_obstacles(2).with_start_speed(0.3).generate(4).unwrap();
+        let mut s = StateSnapshot::new();
+        s.write_problem(&problem).unwrap();
+        assert_eq!((s.dim, s.robots, s.obstacles), (3, 5, 2));
+        for (i, start) in problem.starts.iter().enumerate() {
+            assert_eq!(s.robot[i].position, <[f64; 3]>::from(start.position));
+            assert_eq!(s.robot[i].velocity, <[f64; 3]>::from(start.velocity));
+            assert_eq!(s.robot[i].goal, <[f64; 3]>::from(problem.goals[i]));
+        }
+        let o = &problem.obstacles[1];
+        assert_eq!(s.obstacle[1].position, <[f64; 3]>::from(o.position));
+        assert_eq!((s.obstacle[1].radius, s.obstacle[1].half_height), (o.shape.radius, o.shape.half_height));
+        let mut big = problem.clone();
+        big.obstacles = vec![*o; MAX_OBSTACLES + 1];
+        assert!(matches!(s.write_problem(&big), Err(MessageError::Capacity { obstacles: 17, .. })));
     }
 
     #[test]

@@ -9,6 +9,7 @@
 //! event services a publisher notifies after each send, so a reader can
 //! sleep in a listener or a WaitSet instead of polling.
 
+use std::cell::Cell;
 use std::fmt::Debug;
 use std::time::{Duration, Instant};
 
@@ -25,7 +26,10 @@ use iceoryx2::service::builder::publish_subscribe::PublishSubscribeOpenOrCreateE
 use thiserror::Error;
 
 use crate::clock::monotonic_ns;
-use crate::messages::{JointTrajectory, MessageError, StateSnapshot, WIRE_VERSION, check_team_name};
+use crate::follow::{Followed, Follower};
+use crate::messages::{
+    JointTrajectory, MAX_COEFFS, MAX_ROBOTS, MessageError, RobotState, StateSnapshot, WIRE_VERSION, check_team_name,
+};
 
 /// Publishers a service admits (two, so a restarted publisher can join
 /// before its dead predecessor is cleaned up).
@@ -135,17 +139,47 @@ impl TeamChannel {
     }
 }
 
-/// A message type that may be sent: every field valid when all bytes are
-/// zero, and a version to stamp.
+/// A message type that may be sent: plain data (every field an integer, a
+/// float or an array of them, so every byte pattern is a valid value) laid
+/// out as a header and then `MAX_ROBOTS` per-robot entries, of which a
+/// message uses a prefix.
 ///
 /// # Safety
-/// Implementors guarantee that the all-zero bit pattern is a valid value.
-unsafe trait Wire: Debug + ZeroCopySend + 'static {}
+/// Implementors guarantee that every byte pattern is a valid value and that
+/// `HEADER + MAX_ROBOTS * ENTRY` is the type's size.
+unsafe trait Wire: Debug + ZeroCopySend + 'static {
+    /// Bytes before the per-robot entries.
+    const HEADER: usize;
+    /// Bytes of one per-robot entry.
+    const ENTRY: usize;
+    /// The entries a written message declares in use.
+    fn entries(&self) -> usize;
+}
 
-// SAFETY: integers, floats and arrays of them; zero is valid for each.
-unsafe impl Wire for StateSnapshot {}
-// SAFETY: as above, and both enums have a variant with discriminant 0.
-unsafe impl Wire for JointTrajectory {}
+// SAFETY: integers, floats and arrays of them; the robots come last.
+unsafe impl Wire for StateSnapshot {
+    const HEADER: usize = std::mem::offset_of!(StateSnapshot, robot);
+    const ENTRY: usize = size_of::<RobotState>();
+    fn entries(&self) -> usize {
+        (self.robots as usize).min(MAX_ROBOTS)
+    }
+}
+
+// SAFETY: integers, floats and arrays of them (the status and reason are
+// `u32`s on the wire); the coefficients come last.
+unsafe impl Wire for JointTrajectory {
+    const HEADER: usize = std::mem::offset_of!(JointTrajectory, coeffs);
+    const ENTRY: usize = size_of::<[[f64; MAX_COEFFS]; 3]>();
+    fn entries(&self) -> usize {
+        (self.robots as usize).min(MAX_ROBOTS)
+    }
+}
+
+/// Loans of a publisher that clear the whole message: iceoryx2's pool of a
+/// publisher of these services (`max_subscribers * (buffer + borrowed) +
+/// history + loans`), so that every chunk starts cleared whatever order the
+/// pool hands them out in.
+const FULL_CLEARS: usize = MAX_SUBSCRIBERS * (1 + 2) + 1 + 2;
 
 /// One iceoryx2 node: the handle a process (or thread: the ports are not
 /// `Send`) opens its ports from. Signal handling is left to the
@@ -182,9 +216,12 @@ impl Endpoint {
         })
     }
 
-    /// For a controller: receives the newest plan of `channel`'s team.
+    /// For a controller: receives the newest plan of `channel`'s team and
+    /// keeps the trajectory to follow, from answers to snapshots measured
+    /// from now on ([`Follower::since`]).
     pub fn plan_subscriber(&self, channel: &TeamChannel) -> Result<PlanSubscriber, PortError> {
-        Ok(PlanSubscriber { inlet: self.inlet(&channel.plan, &channel.plan_ready)? })
+        let inlet = self.inlet(&channel.plan, &channel.plan_ready)?;
+        Ok(PlanSubscriber { inlet, follower: Follower::since(monotonic_ns()) })
     }
 
     /// For the daemon: receives the newest snapshot of `channel`'s team.
@@ -230,10 +267,10 @@ impl Endpoint {
     }
 
     fn outlet<T: Wire>(&self, topic: &ServiceName, ready: &ServiceName) -> Result<Outlet<T>, PortError> {
-        Ok(Outlet {
-            publisher: self.topic::<T>(topic)?.publisher_builder().create().map_err(PortError::Publisher)?,
-            notifier: self.event(ready)?.notifier_builder().create().map_err(PortError::Notifier)?,
-        })
+        Ok(Outlet::new(
+            self.topic::<T>(topic)?.publisher_builder().create().map_err(PortError::Publisher)?,
+            self.event(ready)?.notifier_builder().create().map_err(PortError::Notifier)?,
+        ))
     }
 
     fn inlet<T: Wire>(&self, topic: &ServiceName, ready: &ServiceName) -> Result<Inlet<T>, PortError> {
@@ -257,20 +294,43 @@ pub type Received<T> = Sample<ipc::Service, T, ()>;
 struct Outlet<T: Wire> {
     publisher: Publisher<ipc::Service, T, ()>,
     notifier: Notifier<ipc::Service>,
+    /// Loans so far.
+    loans: Cell<usize>,
+    /// The most entries any message of this publisher declared in use.
+    high_water: Cell<usize>,
 }
 
 impl<T: Wire> Outlet<T> {
+    fn new(publisher: Publisher<ipc::Service, T, ()>, notifier: Notifier<ipc::Service>) -> Self {
+        Self { publisher, notifier, loans: Cell::new(0), high_water: Cell::new(0) }
+    }
+
     /// Loans a sample, zeroes it, lets `fill` write it in place, sends it
     /// and wakes the listeners; returns the subscribers reached.
+    ///
+    /// Zeroing the whole capacity (98 KB for a plan) would cost more than
+    /// the rest of a round trip, so after the first [`FULL_CLEARS`] loans
+    /// only the header and as many entries as any earlier message of this
+    /// publisher used are zeroed: the rest of a chunk has only ever held
+    /// zeros.
     fn publish_with(&self, fill: impl FnOnce(&mut T)) -> Result<usize, PortError> {
         let mut sample = self.publisher.loan_uninit().map_err(PortError::Loan)?;
-        // SAFETY: `Wire` guarantees that all-zero bytes are a valid `T`, so
-        // the payload is initialised after the write.
+        let clear = if self.loans.get() < FULL_CLEARS {
+            size_of::<T>()
+        } else {
+            (T::HEADER + self.high_water.get() * T::ENTRY).min(size_of::<T>())
+        };
+        // SAFETY: `Wire` types are valid for every byte pattern, and the
+        // chunk's bytes are initialised (shared memory is created zeroed and
+        // only ever written with values of `T`); the first `clear` bytes are
+        // zeroed here.
         let mut sample = unsafe {
-            sample.payload_mut().as_mut_ptr().write_bytes(0, 1);
+            sample.payload_mut().as_mut_ptr().cast::<u8>().write_bytes(0, clear);
             sample.assume_init()
         };
         fill(sample.payload_mut());
+        self.loans.set(self.loans.get().saturating_add(1));
+        self.high_water.set(self.high_water.get().max(sample.payload().entries()));
         let reached = sample.send().map_err(PortError::Send)?;
         self.notifier.notify().map_err(PortError::Notify)?;
         Ok(reached)
@@ -344,21 +404,43 @@ impl StatePublisher {
     }
 }
 
-/// A controller's port for plans: newest-plan semantics.
+/// A controller's port for plans: newest-plan semantics, and the
+/// trajectory to follow by the followability contract ([`Follower`]).
 #[derive(Debug)]
 pub struct PlanSubscriber {
     inlet: Inlet<JointTrajectory>,
+    follower: Follower,
 }
 
 impl PlanSubscriber {
-    /// The newest plan not yet taken, if any (older ones are dropped).
-    pub fn latest(&self) -> Result<Option<Received<JointTrajectory>>, PortError> {
-        self.inlet.latest()
+    /// The newest plan not yet taken, if any (older ones are dropped); it
+    /// also becomes the trajectory to follow ([`Self::to_follow`]).
+    pub fn latest(&mut self) -> Result<Option<Received<JointTrajectory>>, PortError> {
+        let latest = self.inlet.latest()?;
+        self.take(latest.as_deref());
+        Ok(latest)
     }
 
-    /// The newest plan not yet taken, waiting up to `timeout` for one.
-    pub fn wait(&self, timeout: Duration) -> Result<Option<Received<JointTrajectory>>, PortError> {
-        self.inlet.wait(timeout)
+    /// The newest plan not yet taken, waiting up to `timeout` for one; it
+    /// also becomes the trajectory to follow ([`Self::to_follow`]).
+    pub fn wait(&mut self, timeout: Duration) -> Result<Option<Received<JointTrajectory>>, PortError> {
+        let latest = self.inlet.wait(timeout)?;
+        self.take(latest.as_deref());
+        Ok(latest)
+    }
+
+    /// The trajectory to follow now, from the newest plan taken: `None`
+    /// when there is none (no plan yet, or the daemon said there is no
+    /// verified one): bring the robots to rest.
+    pub fn to_follow(&self) -> Option<&Followed> {
+        self.follower.current()
+    }
+
+    fn take(&mut self, msg: Option<&JointTrajectory>) {
+        if let Some(msg) = msg {
+            // A message that cannot be read leaves nothing to follow.
+            let _ = self.follower.take(msg);
+        }
     }
 }
 

@@ -114,11 +114,38 @@ pub struct TeamConfig {
     /// always from the newest snapshot.
     #[serde(default)]
     pub replan_hz: f64,
-    /// Report the state as stale when no snapshot arrives for this long (ms).
+    /// Report the state as stale when no snapshot arrives for this long
+    /// (ms); a snapshot measured longer ago than this is rejected.
     #[serde(default = "default_stale_ms")]
     pub stale_after_ms: f64,
-    /// The learned planner for cold plans; without it the from-scratch
-    /// optimiser makes them.
+    /// How far ahead of the daemon's clock a snapshot's timestamp may be
+    /// (ms): the controllers' clock skew.
+    #[serde(default = "default_clock_skew_ms")]
+    pub clock_skew_ms: f64,
+    /// The robots' top speed (m/s): published plans stay within it.
+    #[serde(default = "default_max_speed")]
+    pub max_speed: f64,
+    /// The robots' top acceleration (m/s^2): published plans stay within it.
+    #[serde(default = "default_max_acceleration")]
+    pub max_acceleration: f64,
+    /// A snapshot whose robot moves faster than this many times
+    /// `max_speed` is rejected as implausible.
+    #[serde(default = "default_implausible_factor")]
+    pub implausible_factor: f64,
+    /// Robots within this distance (m) of the held plan are following it:
+    /// it may be re-issued while no new plan verifies.
+    #[serde(default = "default_follow_tolerance_m")]
+    pub follow_tolerance_m: f64,
+    /// Robots within this distance (m) of the previous plan are
+    /// warm-started from it; farther, they get a cold plan.
+    #[serde(default = "default_warm_tolerance_m")]
+    pub warm_tolerance_m: f64,
+    /// Longest a cold plan keeps running past its deadline (ms) before it
+    /// is given up.
+    #[serde(default = "default_cold_budget_ms")]
+    pub cold_budget_ms: f64,
+    /// The learned planner for cold plans, racing the from-scratch
+    /// optimiser; without it the optimiser makes them alone.
     #[serde(default)]
     pub learned: Option<LearnedConfig>,
 }
@@ -168,6 +195,27 @@ fn default_deadline_ms() -> f64 {
 fn default_stale_ms() -> f64 {
     500.0
 }
+fn default_clock_skew_ms() -> f64 {
+    50.0
+}
+fn default_max_speed() -> f64 {
+    1.5
+}
+fn default_max_acceleration() -> f64 {
+    3.0
+}
+fn default_implausible_factor() -> f64 {
+    2.0
+}
+fn default_follow_tolerance_m() -> f64 {
+    0.005
+}
+fn default_warm_tolerance_m() -> f64 {
+    0.05
+}
+fn default_cold_budget_ms() -> f64 {
+    2000.0
+}
 
 impl TeamConfig {
     /// The planner's description of this team.
@@ -185,8 +233,21 @@ impl TeamConfig {
         }
         check_team_name(&self.name).map_err(|e| bad(e.to_string()))?;
         let positive = |v: f64| v.is_finite() && v > 0.0;
-        if !positive(self.deadline_ms) || !positive(self.stale_after_ms) {
-            return Err(bad("deadline_ms and stale_after_ms must be positive".into()));
+        let named = [
+            ("deadline_ms", self.deadline_ms),
+            ("stale_after_ms", self.stale_after_ms),
+            ("clock_skew_ms", self.clock_skew_ms),
+            ("max_speed", self.max_speed),
+            ("max_acceleration", self.max_acceleration),
+            ("follow_tolerance_m", self.follow_tolerance_m),
+            ("warm_tolerance_m", self.warm_tolerance_m),
+            ("cold_budget_ms", self.cold_budget_ms),
+        ];
+        if let Some((name, _)) = named.iter().find(|(_, v)| !positive(*v)) {
+            return Err(bad(format!("{name} must be positive")));
+        }
+        if !(self.implausible_factor.is_finite() && self.implausible_factor >= 1.0) {
+            return Err(bad("implausible_factor must be at least 1".into()));
         }
         if !(self.replan_hz.is_finite() && self.replan_hz >= 0.0) {
             return Err(bad("replan_hz must be 0 or positive".into()));
@@ -256,6 +317,8 @@ mod tests {
         let t = &config.teams[0];
         assert_eq!((t.horizon, t.degree, t.samples, t.max_obstacles), (5.0, 10, 50, 0));
         assert_eq!((t.deadline_ms, t.replan_hz, t.stale_after_ms), (20.0, 0.0, 500.0));
+        assert_eq!((t.max_speed, t.max_acceleration, t.implausible_factor), (1.5, 3.0, 2.0));
+        assert_eq!((t.clock_skew_ms, t.follow_tolerance_m, t.warm_tolerance_m), (50.0, 0.005, 0.05));
     }
 
     #[test]
@@ -264,7 +327,9 @@ mod tests {
             let config: DaemonConfig = toml::from_str(&MINIMAL.replace(from, to)).unwrap();
             config.check().unwrap_err().to_string()
         };
-        assert!(bad("robots = 4", "robots = 65").contains("at most 64 robots"));
+        assert!(bad("robots = 4", "robots = 257").contains("at most 256 robots"));
+        assert!(bad("robots = 4", "robots = 4\nmax_speed = -1.0").contains("max_speed must be positive"));
+        assert!(bad("robots = 4", "robots = 4\nimplausible_factor = 0.5").contains("implausible_factor"));
         assert!(bad("radius = 0.1", "radius = -0.1").contains("team \"a\""));
         assert!(bad("min = [-1.0, -1.0]", "min = [-1.0]").contains("workspace.min"));
         assert!(bad("name = \"a\"", "name = \"a/b\"").contains("name"));

@@ -15,22 +15,26 @@ pub struct Rejection {
 }
 
 impl Rejection {
-    fn new(reason: Reason) -> Self {
+    /// A rejection that points at no robot or obstacle.
+    pub fn new(reason: Reason) -> Self {
         Self { reason, index: u32::MAX }
     }
 
-    fn at(reason: Reason, index: usize) -> Self {
+    /// A rejection that points at robot (or `MAX_ROBOTS + obstacle`) `index`.
+    pub fn at(reason: Reason, index: usize) -> Self {
         Self { reason, index: index as u32 }
     }
 }
 
 /// Checks `snapshot` against `team` (named `name`, admitting up to
-/// `max_obstacles`) and builds the problem, starting at rest acceleration.
+/// `max_obstacles` and robot speeds up to `max_plausible_speed`) and builds
+/// the problem, with zero start accelerations.
 pub fn problem_from(
     snapshot: &StateSnapshot,
     team: &Team,
     name: &str,
     max_obstacles: usize,
+    max_plausible_speed: f64,
 ) -> Result<Problem, Rejection> {
     if snapshot.version != WIRE_VERSION {
         return Err(Rejection::new(Reason::Version));
@@ -81,6 +85,9 @@ pub fn problem_from(
         }
     }
     problem.validate().map_err(|e| rejection_of(&e))?;
+    if let Some(i) = problem.starts.iter().position(|s| s.velocity.norm() > max_plausible_speed) {
+        return Err(Rejection::at(Reason::Implausible, i));
+    }
     Ok(problem)
 }
 
@@ -94,7 +101,10 @@ pub fn rejection_of(error: &ProblemError) -> Rejection {
             }
             _ => Rejection::at(Reason::NonFinite, index),
         },
-        E::NonPositive(_) => Rejection::new(Reason::NonPositiveSize),
+        E::NonPositive { field: Field::ObstacleSize, index } => {
+            Rejection::at(Reason::NonPositiveSize, MAX_ROBOTS + index)
+        }
+        E::NonPositive { .. } => Rejection::new(Reason::NonPositiveSize),
         E::StartsOverlap { i, .. } => Rejection::at(Reason::StartsOverlap, i),
         E::GoalsOverlap { i, .. } => Rejection::at(Reason::GoalsOverlap, i),
         E::StartInObstacle { robot, .. } => Rejection::at(Reason::StartInObstacle, robot),
@@ -124,7 +134,7 @@ mod tests {
     }
 
     fn check(s: &StateSnapshot, team: &Team) -> Result<Problem, Rejection> {
-        problem_from(s, team, "t", 2)
+        problem_from(s, team, "t", 2, 3.0)
     }
 
     #[test]
@@ -143,11 +153,14 @@ mod tests {
             (Box::new(|s| s.version = 99), Reason::Version, u32::MAX),
             (Box::new(|s| s.set_team("other").unwrap()), Reason::Team, u32::MAX),
             (Box::new(|s| s.dim = 3), Reason::Dimension, u32::MAX),
-            (Box::new(|s| s.robots = 65), Reason::RobotCount, u32::MAX),
+            (Box::new(|s| s.robots = MAX_ROBOTS as u32 + 1), Reason::RobotCount, u32::MAX),
             (Box::new(|s| s.obstacles = 3), Reason::ObstacleCount, u32::MAX),
             (Box::new(|s| s.robot[2].velocity[1] = f64::NAN), Reason::NonFinite, 2),
             (Box::new(|s| s.obstacle[0].position[0] = f64::INFINITY), Reason::NonFinite, MAX_ROBOTS as u32),
-            (Box::new(|s| s.obstacle[0].radius = 0.0), Reason::NonPositiveSize, u32::MAX),
+            (Box::new(|s| s.obstacle[0].radius = 0.0), Reason::NonPositiveSize, MAX_ROBOTS as u32),
+            (Box::new(|s| s.obstacle[0].radius = -0.1), Reason::NonPositiveSize, MAX_ROBOTS as u32),
+            (Box::new(|s| s.robot[1].velocity = [1e6, 0.0, 0.0]), Reason::Implausible, 1),
+            (Box::new(|s| s.robot[3].velocity = [0.0, 3.5, 9.0]), Reason::Implausible, 3),
             (Box::new(|s| s.robot[1].position = s.robot[0].position), Reason::StartsOverlap, 0),
             (Box::new(|s| s.robot[1].goal = s.robot[0].goal), Reason::GoalsOverlap, 0),
             (Box::new(|s| s.robot[3].goal = [0.0, 5.0, 0.0]), Reason::GoalOutsideWorkspace, 3),

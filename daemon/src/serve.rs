@@ -16,6 +16,7 @@ use thiserror::Error;
 use tracing::{debug, info, warn};
 
 use crate::config::DaemonConfig;
+use crate::lock::{LockError, TeamLock};
 use crate::planning::{PreloadError, TeamPlanner};
 use crate::worker::{self, Job};
 
@@ -26,6 +27,9 @@ const SHUTDOWN_POLL: Duration = Duration::from_millis(100);
 /// Errors that stop the daemon.
 #[derive(Debug, Error)]
 pub enum DaemonError {
+    /// Another daemon serves a configured team.
+    #[error(transparent)]
+    Served(#[from] LockError),
     /// A team's planner could not be built.
     #[error("team {team:?}: {source}")]
     Preload {
@@ -61,7 +65,12 @@ impl Served {
         let Some(sample) = self.subscriber.latest()? else {
             return Ok(());
         };
-        let job = Job { snapshot: Box::new(*sample.payload()), received: Instant::now(), received_ns: monotonic_ns() };
+        let job = Job {
+            snapshot: Box::new(*sample.payload()),
+            publisher: sample.origin().value(),
+            received: Instant::now(),
+            received_ns: monotonic_ns(),
+        };
         drop(sample);
         match self.jobs.try_send(job) {
             Ok(()) => Ok(()),
@@ -84,6 +93,12 @@ pub fn serve(config: &DaemonConfig, shutdown: Arc<AtomicBool>) -> Result<(), Dae
         Ok(n) => info!("removed the resources of {n} dead iceoryx2 nodes"),
         Err(e) => warn!("dead-node cleanup failed: {e}"),
     }
+    // Refuse before any preloading if another daemon serves a team.
+    let _locks = config
+        .teams
+        .iter()
+        .map(|team| TeamLock::acquire(&config.ipc.prefix, &team.name))
+        .collect::<Result<Vec<_>, _>>()?;
     let endpoint = Endpoint::new("flowopt-daemon")?;
     let mut served = Vec::new();
     for team in &config.teams {

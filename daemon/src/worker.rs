@@ -1,28 +1,32 @@
-//! One team's worker thread: takes the newest snapshot, plans, publishes.
-//! It owns its own iceoryx2 node and plan publisher (ports are not `Send`)
-//! and is the only code that touches the wire: it turns snapshots into
-//! problems ([`crate::convert`]), hands them to the team's planner and
-//! writes every reply with one function ([`write_reply`]).
+//! One team's worker thread: takes the newest snapshot, answers it,
+//! publishes; publishes late cold plans as they are adopted; reports
+//! silence. It owns its own iceoryx2 node and plan publisher (ports are not
+//! `Send`) and is the only code that touches the wire: it turns snapshots
+//! into problems ([`crate::convert`], [`crate::admission`]), hands them to
+//! the team's planner and writes every reply with one function
+//! ([`write_reply`]).
 
 use std::time::{Duration, Instant};
 
-use crossbeam::channel::{Receiver, RecvTimeoutError, Sender};
+use crossbeam::channel::{Receiver, Sender, select};
 use flowopt_client::clock::monotonic_ns;
 use flowopt_client::{
     Endpoint, JointTrajectory, PlanPublisher, PlanStatus, PortError, Reason, StageTimings, StateSnapshot, TeamChannel,
 };
-use flowopt_planner::plan::JointPlan;
 use tracing::{debug, info, info_span, warn};
 
+use crate::admission::Admission;
 use crate::config::TeamConfig;
 use crate::convert::{Rejection, problem_from};
-use crate::planning::{PlanError, Planned, Stages, TeamPlanner, Verdict};
+use crate::planning::{Answer, Follow, Held, Stages, TeamPlanner, Why};
 
 /// A snapshot handed from the WaitSet thread to a worker.
 #[derive(Debug)]
 pub(crate) struct Job {
     /// The snapshot, copied out of shared memory.
     pub snapshot: Box<StateSnapshot>,
+    /// The iceoryx2 publisher that sent it.
+    pub publisher: u128,
     /// When the daemon took it.
     pub received: Instant,
     /// The same, on the shared monotonic clock.
@@ -52,102 +56,105 @@ pub(crate) fn run(
     };
     let (_endpoint, publisher) = publisher;
     let stale_after = Duration::from_secs_f64(config.stale_after_ms * 1e-3);
+    let skew = Duration::from_secs_f64(config.clock_skew_ms * 1e-3);
+    let mut admission = Admission::new(stale_after.as_nanos() as u64, skew.as_nanos() as u64);
     let period = (config.replan_hz > 0.0).then(|| Duration::from_secs_f64(1.0 / config.replan_hz));
-    let mut last_sequence = None;
-    let mut reported_stale = false;
+    let cold_results = planner.cold_results();
+    let mut last_job = Instant::now();
+    let mut reported_stale = true;
     loop {
-        match jobs.recv_timeout(stale_after) {
-            Ok(job) => {
+        select! {
+            recv(jobs) -> job => {
+                let Ok(job) = job else { break };
                 reported_stale = false;
-                let started = Instant::now();
-                last_sequence = Some(job.snapshot.sequence);
-                answer(&config, &mut planner, &publisher, &job);
+                last_job = Instant::now();
+                answer(&config, &mut planner, &mut admission, &publisher, &job);
                 if let Some(period) = period {
-                    std::thread::sleep(period.saturating_sub(started.elapsed()));
+                    std::thread::sleep(period.saturating_sub(last_job.elapsed()));
                 }
             }
-            Err(RecvTimeoutError::Timeout) => {
-                if let (Some(sequence), false) = (last_sequence, reported_stale) {
+            recv(cold_results) -> result => {
+                let Ok(result) = result else { continue };
+                let answered = planner.newest();
+                if let (Some(answer), Some((sequence, timestamp))) = (planner.on_cold(result), answered) {
+                    let reply = Reply::of(&answer, planner.held(), sequence, timestamp, monotonic_ns(), StageTimings::default());
+                    publish(&publisher, &reply, sequence);
+                }
+            }
+            default(stale_after.saturating_sub(last_job.elapsed())) => {
+                if !reported_stale && last_job.elapsed() >= stale_after {
+                    let (sequence, timestamp) = planner.newest().unwrap_or((0, 0));
                     warn!(team = config.name, sequence, "no snapshot for {stale_after:?}: state is stale");
-                    let reply = Reply::stale(planner.last_plan(), sequence, monotonic_ns());
-                    if let Err(e) = publisher.publish_with(|msg| write_reply(msg, &reply)) {
-                        warn!("cannot publish the stale report: {e}");
-                    }
+                    let reply =
+                        Reply::held(planner.held(), Reason::StaleState, u32::MAX, sequence, timestamp, monotonic_ns());
+                    publish(&publisher, &reply, sequence);
                     reported_stale = true;
                 }
             }
-            Err(RecvTimeoutError::Disconnected) => break,
         }
     }
     info!(team = config.name, "worker stopped");
 }
 
-/// What became of one snapshot.
-#[derive(Debug)]
-enum Outcome {
-    /// A plan was made.
-    Planned(Planned),
-    /// The snapshot was invalid.
-    Rejected(Rejection),
-    /// The snapshot was valid but no plan could be made.
-    Failed(PlanError),
-}
-
-/// Validates the snapshot of `job` and plans it; returns the outcome and
-/// the stage times, the validation's included.
-fn respond(config: &TeamConfig, planner: &mut TeamPlanner, job: &Job) -> (Outcome, StageTimings) {
+/// Checks the snapshot of `job` and answers it; returns the reply's pieces.
+fn respond(
+    config: &TeamConfig,
+    planner: &mut TeamPlanner,
+    admission: &mut Admission,
+    job: &Job,
+) -> Result<(Answer, StageTimings), (Rejection, StageTimings)> {
     let s = &job.snapshot;
     let t = Instant::now();
-    let problem = {
+    let checked = {
         let _span = info_span!("validate").entered();
-        problem_from(s, planner.team(), &config.name, config.max_obstacles)
+        let plausible = config.implausible_factor * config.max_speed;
+        admission
+            .check(job.publisher, s.sequence, s.timestamp_ns, job.received_ns)
+            .and_then(|()| problem_from(s, planner.team(), &config.name, config.max_obstacles, plausible))
     };
-    let validate = t.elapsed();
-    let mut stages = Stages::default();
-    let outcome = match problem {
-        Err(rejection) => Outcome::Rejected(rejection),
-        Ok(problem) => {
-            let deadline = job.received + planner.deadline();
-            match planner.plan(problem, s.timestamp_ns, deadline, &mut stages) {
-                Ok(planned) => Outcome::Planned(planned),
-                Err(e) => Outcome::Failed(e),
-            }
-        }
-    };
-    let timings = StageTimings {
-        queue_us: 0,
-        validate_us: us(validate),
-        warm_start_us: us(stages.warm_start),
-        sample_us: us(stages.sample),
-        rank_us: us(stages.rank),
-        init_us: us(stages.init),
-        filter_us: us(stages.filter),
-        optimise_us: us(stages.optimise),
-        select_us: us(stages.select),
-        total_us: 0,
-    };
-    (outcome, timings)
+    let mut timings = StageTimings { validate_us: us(t.elapsed()), ..StageTimings::default() };
+    let problem = checked.map_err(|rejection| (rejection, timings))?;
+    admission.accept(job.publisher, s.sequence);
+    let deadline = job.received + planner.deadline();
+    let answer = planner.answer(problem, s.timestamp_ns, s.sequence, deadline);
+    stage_timings(&mut timings, &answer.stages);
+    Ok((answer, timings))
 }
 
-fn answer(config: &TeamConfig, planner: &mut TeamPlanner, publisher: &PlanPublisher, job: &Job) {
+fn answer(
+    config: &TeamConfig,
+    planner: &mut TeamPlanner,
+    admission: &mut Admission,
+    publisher: &PlanPublisher,
+    job: &Job,
+) {
     let s = &job.snapshot;
     let span = info_span!("plan", sequence = s.sequence);
     let _entered = span.enter();
     let queue = job.received.elapsed();
-    let (outcome, mut timings) = respond(config, planner, job);
-    timings.queue_us = us(queue);
-    let _publish = info_span!("publish").entered();
-    let result = publisher.publish_with(|msg| {
-        timings.total_us = us(job.received.elapsed());
-        write_reply(msg, &Reply::answer(&outcome, job, timings));
-    });
-    match (&outcome, result) {
-        (Outcome::Rejected(r), Ok(_)) => warn!(sequence = s.sequence, reason = ?r, "snapshot rejected"),
-        (Outcome::Failed(e), Ok(_)) => warn!(sequence = s.sequence, "no plan: {e}"),
-        (Outcome::Planned(p), Ok(_)) => {
-            debug!(sequence = s.sequence, verdict = ?p.verdict, iterations = p.iterations, "published")
+    let (sequence, timestamp) = (s.sequence, s.timestamp_ns);
+    let mut reply = match respond(config, planner, admission, job) {
+        Ok((answer, timings)) => {
+            debug!(sequence, follow = ?answer.follow, why = ?answer.why, iterations = answer.iterations, "answered");
+            Reply::of(&answer, planner.held(), sequence, timestamp, job.received_ns, timings)
         }
-        (_, Err(e)) => warn!(sequence = s.sequence, "cannot publish the plan: {e}"),
+        Err((rejection, timings)) => {
+            warn!(sequence, reason = ?rejection.reason, index = rejection.index, "snapshot rejected");
+            let mut reply =
+                Reply::held(planner.held(), rejection.reason, rejection.index, sequence, timestamp, job.received_ns);
+            reply.timings = timings;
+            reply
+        }
+    };
+    reply.timings.queue_us = us(queue);
+    let _publish = info_span!("publish").entered();
+    reply.timings.total_us = us(job.received.elapsed());
+    publish(publisher, &reply, sequence);
+}
+
+fn publish(publisher: &PlanPublisher, reply: &Reply<'_>, sequence: u64) {
+    if let Err(e) = publisher.publish_with(|msg| write_reply(msg, reply)) {
+        warn!(sequence, "cannot publish the reply: {e}");
     }
 }
 
@@ -157,12 +164,11 @@ struct Reply<'a> {
     status: PlanStatus,
     reason: Reason,
     reason_index: u32,
-    plan: Option<&'a JointPlan>,
+    /// The trajectory to follow (for the followable statuses).
+    plan: Option<&'a Held>,
     answers_sequence: u64,
     state_timestamp_ns: u64,
     received_ns: u64,
-    primal_residual: f64,
-    smoothness: f64,
     iterations: usize,
     warm_started: bool,
     candidates: usize,
@@ -170,60 +176,55 @@ struct Reply<'a> {
 }
 
 impl<'a> Reply<'a> {
-    /// The answer to `job`.
-    fn answer(outcome: &'a Outcome, job: &Job, timings: StageTimings) -> Self {
-        let mut reply = Reply {
-            status: PlanStatus::NoPlan,
-            reason: Reason::None,
-            reason_index: u32::MAX,
-            plan: None,
-            answers_sequence: job.snapshot.sequence,
-            state_timestamp_ns: job.snapshot.timestamp_ns,
-            received_ns: job.received_ns,
-            primal_residual: f64::NAN,
-            smoothness: f64::NAN,
-            iterations: 0,
-            warm_started: false,
-            candidates: 0,
-            timings,
+    /// The reply carrying `answer` to snapshot `sequence` (measured at
+    /// `timestamp_ns`); `held` is the planner's held plan after it.
+    fn of(
+        answer: &Answer,
+        held: Option<&'a Held>,
+        sequence: u64,
+        timestamp_ns: u64,
+        received_ns: u64,
+        timings: StageTimings,
+    ) -> Self {
+        let status = match (answer.follow, held) {
+            (Follow::New, Some(_)) => PlanStatus::Ok,
+            (Follow::Held, Some(_)) => PlanStatus::Held,
+            (Follow::Stopping, Some(_)) => PlanStatus::Stopping,
+            _ => PlanStatus::NoPlan,
         };
-        match outcome {
-            Outcome::Planned(p) => {
-                reply.status = match p.verdict {
-                    Verdict::Verified => PlanStatus::Ok,
-                    Verdict::IterationCap => PlanStatus::Degraded,
-                    Verdict::DeadlineMissed => PlanStatus::DeadlineMissed,
-                };
-                reply.plan = Some(&p.plan);
-                reply.primal_residual = p.primal;
-                reply.smoothness = p.smoothness;
-                reply.iterations = p.iterations;
-                reply.warm_started = p.warm;
-                reply.candidates = p.candidates;
-            }
-            Outcome::Rejected(r) => {
-                reply.status = PlanStatus::RejectedInput;
-                reply.reason = r.reason;
-                reply.reason_index = r.index;
-            }
-            Outcome::Failed(PlanError::Solver(_)) => reply.reason = Reason::Solver,
+        Reply {
+            status,
+            reason: reason_of(answer.why),
+            reason_index: u32::MAX,
+            plan: held.filter(|_| status.followable()),
+            answers_sequence: sequence,
+            state_timestamp_ns: timestamp_ns,
+            received_ns,
+            iterations: answer.iterations,
+            warm_started: answer.warm,
+            candidates: answer.candidates,
+            timings,
         }
-        reply
     }
 
-    /// The report that no snapshot arrived after `sequence`: the last plan
-    /// repeated, if there is one.
-    fn stale(last: Option<(&'a JointPlan, u64)>, sequence: u64, now_ns: u64) -> Self {
+    /// The held plan re-issued (or no plan, when there is none) for
+    /// `reason`: a rejected snapshot, or silence.
+    fn held(
+        held: Option<&'a Held>,
+        reason: Reason,
+        reason_index: u32,
+        sequence: u64,
+        timestamp_ns: u64,
+        received_ns: u64,
+    ) -> Self {
         Reply {
-            status: if last.is_some() { PlanStatus::Stale } else { PlanStatus::NoPlan },
-            reason: Reason::StaleState,
-            reason_index: u32::MAX,
-            plan: last.map(|(plan, _)| plan),
+            status: if held.is_some() { PlanStatus::Held } else { PlanStatus::NoPlan },
+            reason,
+            reason_index,
+            plan: held,
             answers_sequence: sequence,
-            state_timestamp_ns: last.map_or(0, |(_, origin)| origin),
-            received_ns: now_ns,
-            primal_residual: 0.0,
-            smoothness: 0.0,
+            state_timestamp_ns: timestamp_ns,
+            received_ns,
             iterations: 0,
             warm_started: false,
             candidates: 0,
@@ -232,28 +233,60 @@ impl<'a> Reply<'a> {
     }
 }
 
+/// The wire reason of a planner's `why`.
+fn reason_of(why: Why) -> Reason {
+    match why {
+        Why::None => Reason::None,
+        Why::DeadlineMissed => Reason::DeadlineMissed,
+        Why::NotVerified => Reason::NotVerified,
+        Why::NotFollowing => Reason::NotFollowing,
+        Why::Limits => Reason::Limits,
+    }
+}
+
 /// Writes every field of a reply but those the publisher stamps (`version`,
 /// `team`, `published_ns`). A plan the message cannot carry (the
 /// configuration was checked against the capacity) becomes `NoPlan`.
 fn write_reply(msg: &mut JointTrajectory, reply: &Reply<'_>) {
-    msg.status = reply.status;
-    msg.reason = reply.reason;
+    msg.set_status(reply.status);
+    msg.set_reason(reply.reason);
     msg.reason_index = reply.reason_index;
-    if let Some(plan) = reply.plan
-        && msg.write_plan(plan).is_err()
-    {
-        msg.status = PlanStatus::NoPlan;
-        msg.reason = Reason::Solver;
-    }
     msg.answers_sequence = reply.answers_sequence;
     msg.state_timestamp_ns = reply.state_timestamp_ns;
     msg.received_ns = reply.received_ns;
-    msg.primal_residual = reply.primal_residual;
-    msg.smoothness = reply.smoothness;
     msg.iterations = reply.iterations.min(u32::MAX as usize) as u32;
     msg.warm_started = u32::from(reply.warm_started);
     msg.candidates = reply.candidates.min(u32::MAX as usize) as u32;
     msg.timings = reply.timings;
+    match reply.plan {
+        Some(held) if msg.write_plan(&held.plan).is_ok() => {
+            msg.plan_sequence = held.sequence;
+            msg.plan_origin_ns = held.origin_ns;
+            msg.primal_residual = held.primal;
+            msg.smoothness = held.smoothness;
+            msg.max_speed = held.max_speed;
+            msg.max_acceleration = held.max_acceleration;
+        }
+        Some(_) => {
+            msg.set_status(PlanStatus::NoPlan);
+            msg.set_reason(Reason::Solver);
+        }
+        None => {
+            msg.primal_residual = f64::NAN;
+            msg.smoothness = f64::NAN;
+        }
+    }
+}
+
+/// The wire timings of `stages`, into `timings`.
+fn stage_timings(timings: &mut StageTimings, stages: &Stages) {
+    timings.warm_start_us = us(stages.warm_start);
+    timings.sample_us = us(stages.sample);
+    timings.rank_us = us(stages.rank);
+    timings.init_us = us(stages.init);
+    timings.filter_us = us(stages.filter);
+    timings.optimise_us = us(stages.optimise);
+    timings.select_us = us(stages.select);
 }
 
 /// Microseconds, saturating at `u32::MAX`.
@@ -264,7 +297,7 @@ fn us(d: Duration) -> u32 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use flowopt_planner::problem::{Dim, Team};
+    use flowopt_planner::problem::Problem;
     use flowopt_planner::scenario::RandomScenario;
 
     fn config() -> TeamConfig {
@@ -275,55 +308,80 @@ mod tests {
         .unwrap()
     }
 
-    fn job(snapshot: StateSnapshot) -> Job {
-        Job { snapshot: Box::new(snapshot), received: Instant::now(), received_ns: monotonic_ns() }
+    fn admission() -> Admission {
+        Admission::new(500_000_000, 50_000_000)
     }
 
-    fn snapshot(problem: &flowopt_planner::problem::Problem, sequence: u64) -> StateSnapshot {
+    /// A job for snapshot `sequence` of `problem` from publisher 1, measured now.
+    fn job(problem: &Problem, sequence: u64, edit: impl FnOnce(&mut StateSnapshot)) -> Job {
         let mut s = StateSnapshot::new();
         s.set_team("t").unwrap();
         s.sequence = sequence;
-        s.timestamp_ns = sequence * 10;
+        s.timestamp_ns = monotonic_ns();
         s.write_problem(problem).unwrap();
-        s
+        edit(&mut s);
+        Job { snapshot: Box::new(s), publisher: 1, received: Instant::now(), received_ns: monotonic_ns() }
     }
 
     #[test]
-    fn bad_input_gets_a_rejection_and_keeps_the_last_plan() {
-        let config = config();
+    fn bad_snapshots_are_rejected_and_change_nothing() {
+        let (config, mut admission) = (config(), admission());
         let mut planner = TeamPlanner::preload(&config).unwrap();
-        let problem = RandomScenario::new(Team::default_for(Dim::Two, 4)).generate(1).unwrap();
-        let (first, _) = respond(&config, &mut planner, &job(snapshot(&problem, 1)));
-        assert!(matches!(first, Outcome::Planned(_)));
-        let mut bad = snapshot(&problem, 2);
-        bad.robot[0].goal[0] = f64::NAN;
-        let (rejected, _) = respond(&config, &mut planner, &job(bad));
-        let Outcome::Rejected(rejection) = rejected else { panic!("{rejected:?}") };
-        assert_eq!(rejection.reason, Reason::NonFinite);
-        assert_eq!(planner.last_plan().map(|(_, origin)| origin), Some(10), "a rejection keeps the last plan");
+        let problem = RandomScenario::new(planner.team().clone()).generate(1).unwrap();
+        let first = job(&problem, 5, |_| {});
+        let (answer, _) = respond(&config, &mut planner, &mut admission, &first).unwrap();
+        assert_eq!(answer.follow, Follow::New);
+        let origin = planner.held().unwrap().origin_ns;
+        type Edit = Box<dyn FnOnce(&mut StateSnapshot)>;
+        let cases: Vec<(u64, Edit, Reason)> = vec![
+            (6, Box::new(|s| s.robot[0].goal[0] = f64::NAN), Reason::NonFinite),
+            (7, Box::new(|s| s.robot[2].velocity = [1e6, 0.0, 0.0]), Reason::Implausible),
+            (8, Box::new(|s| s.timestamp_ns = 0), Reason::Clock),
+            (9, Box::new(|s| s.timestamp_ns += 3_600_000_000_000), Reason::Clock),
+            (5, Box::new(|_| {}), Reason::Sequence),
+            (4, Box::new(|_| {}), Reason::Sequence),
+            (u64::MAX, Box::new(|_| {}), Reason::Sequence),
+        ];
+        for (sequence, edit, reason) in cases {
+            let (rejection, _) =
+                respond(&config, &mut planner, &mut admission, &job(&problem, sequence, edit)).unwrap_err();
+            assert_eq!(rejection.reason, reason, "sequence {sequence}");
+            assert_eq!(planner.held().unwrap().origin_ns, origin, "a rejection keeps the held plan");
+            assert_eq!(planner.newest().map(|(s, _)| s), Some(5), "and the newest state");
+        }
+        // The next valid snapshot is planned: rejected sequences were not recorded.
+        let (answer, _) = respond(&config, &mut planner, &mut admission, &job(&problem, 6, |_| {})).unwrap();
+        assert_ne!(answer.follow, Follow::Nothing);
     }
 
     #[test]
-    fn one_function_writes_every_field_of_a_planned_reply() {
-        let config = config();
+    fn one_function_writes_every_field_of_a_reply() {
+        let (config, mut admission) = (config(), admission());
         let mut planner = TeamPlanner::preload(&config).unwrap();
-        let problem = RandomScenario::new(Team::default_for(Dim::Two, 4)).generate(2).unwrap();
-        let j = job(snapshot(&problem, 7));
-        let (outcome, timings) = respond(&config, &mut planner, &j);
-        let Outcome::Planned(planned) = &outcome else { panic!("{outcome:?}") };
+        let problem = RandomScenario::new(planner.team().clone()).generate(2).unwrap();
+        let j = job(&problem, 7, |_| {});
+        let (answer, timings) = respond(&config, &mut planner, &mut admission, &j).unwrap();
+        let held = planner.held().unwrap();
         let mut msg = JointTrajectory::new();
-        write_reply(&mut msg, &Reply::answer(&outcome, &j, timings));
-        assert_eq!((msg.status, msg.reason, msg.reason_index), (PlanStatus::Ok, Reason::None, u32::MAX));
-        assert_eq!((msg.answers_sequence, msg.state_timestamp_ns, msg.received_ns), (7, 70, j.received_ns));
-        assert_eq!(msg.plan().unwrap(), planned.plan);
-        assert_eq!((msg.primal_residual, msg.smoothness), (planned.primal, planned.smoothness));
-        assert_eq!((msg.iterations, msg.warm_started, msg.candidates), (planned.iterations as u32, 0, 1));
-        assert!(msg.timings.validate_us > 0 || msg.timings.optimise_us > 0);
-        // A rejection carries no plan and says why.
-        let rejected = Outcome::Rejected(Rejection { reason: Reason::GoalsOverlap, index: 2 });
+        let timestamp = j.snapshot.timestamp_ns;
+        write_reply(&mut msg, &Reply::of(&answer, Some(held), 7, timestamp, j.received_ns, timings));
+        assert_eq!((msg.status(), msg.reason(), msg.reason_index), (Ok(PlanStatus::Ok), Ok(Reason::None), u32::MAX));
+        assert_eq!((msg.answers_sequence, msg.state_timestamp_ns, msg.received_ns), (7, timestamp, j.received_ns));
+        assert_eq!((msg.plan_sequence, msg.plan_origin_ns), (7, timestamp));
+        assert_eq!(msg.plan().unwrap(), held.plan);
+        assert_eq!((msg.primal_residual, msg.smoothness), (held.primal, held.smoothness));
+        assert_eq!((msg.max_speed, msg.max_acceleration), (held.max_speed, held.max_acceleration));
+        assert_eq!((msg.iterations, msg.candidates), (answer.iterations as u32, 1));
+        // A rejection re-issues the held plan with its own origin and says why.
         let mut msg = JointTrajectory::new();
-        write_reply(&mut msg, &Reply::answer(&rejected, &j, StageTimings::default()));
-        assert_eq!((msg.status, msg.reason, msg.reason_index), (PlanStatus::RejectedInput, Reason::GoalsOverlap, 2));
+        write_reply(&mut msg, &Reply::held(Some(held), Reason::GoalsOverlap, 2, 8, timestamp + 20, j.received_ns));
+        assert_eq!((msg.status(), msg.reason(), msg.reason_index), (Ok(PlanStatus::Held), Ok(Reason::GoalsOverlap), 2));
+        assert_eq!((msg.answers_sequence, msg.plan_sequence, msg.plan_origin_ns), (8, 7, timestamp));
+        assert_eq!(msg.plan().unwrap(), held.plan);
+        // Without a held plan there is nothing to follow.
+        let mut msg = JointTrajectory::new();
+        write_reply(&mut msg, &Reply::held(None, Reason::StaleState, u32::MAX, 8, 0, 0));
+        assert_eq!((msg.status(), msg.reason()), (Ok(PlanStatus::NoPlan), Ok(Reason::StaleState)));
         assert!(msg.plan().is_err() && msg.primal_residual.is_nan());
     }
 }

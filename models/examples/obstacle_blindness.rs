@@ -10,7 +10,7 @@ use std::path::Path;
 
 use flowopt_models::coding::Coding;
 use flowopt_models::pipeline::{FlowOpt, PipelineSettings};
-use flowopt_planner::am::{AmSettings, Engine, Objective};
+use flowopt_planner::am::{AmSettings, Budget, Engine, Objective};
 use flowopt_planner::plan::JointPlan;
 use flowopt_planner::problem::{Dim, Problem, Team, scaled_norm};
 use flowopt_planner::scenario::RandomScenario;
@@ -50,10 +50,10 @@ fn main() -> anyhow::Result<()> {
     for seed in 0..problems {
         let problem = RandomScenario::new(team.clone()).with_obstacles(8).generate(seed)?;
         let reference = coding.reference(&problem);
-        let with = flow.plan(&problem, &cluttered, &settings, seed, None)?.samples;
+        let with = flow.plan(&problem, &cluttered, &settings, seed, &Budget::unlimited())?.samples;
         let mut blind = problem.clone();
         blind.obstacles.clear();
-        let without = flow.plan(&blind, &free, &settings, seed, None)?.samples;
+        let without = flow.plan(&blind, &free, &settings, seed, &Budget::unlimited())?.samples;
         for (k, level) in [0.6, 1.0].into_iter().enumerate() {
             straight[k] += robots_within(&problem, &reference, level);
             sampled[k] += with.iter().map(|x| robots_within(&problem, x, level)).sum::<usize>();

@@ -10,7 +10,7 @@ use std::path::Path;
 use std::time::Instant;
 
 use candle_core::{Device, Tensor};
-use flowopt_planner::am::{AmOutcome, AmSettings, AmState, Engine, EngineSet, Objective, Prepared, Stop};
+use flowopt_planner::am::{AmOutcome, AmSettings, AmState, Budget, Engine, EngineSet, Objective, Prepared, Stop};
 use flowopt_planner::plan::JointPlan;
 use flowopt_planner::problem::{Problem, Team};
 use rand::SeedableRng;
@@ -256,9 +256,9 @@ impl FlowOpt {
         sf: &Engine,
         settings: &PipelineSettings,
         seed: u64,
-        deadline: Option<Instant>,
+        budget: &Budget<'_>,
     ) -> Result<PipelineOutcome, ModelError> {
-        let mut outcomes = self.plan_batch(&[query.into()], sf, settings, seed, deadline)?;
+        let mut outcomes = self.plan_batch(&[query.into()], sf, settings, seed, budget)?;
         outcomes.pop().ok_or_else(|| ModelError::Config("the pipeline returned no plan".into()))
     }
 
@@ -267,8 +267,8 @@ impl FlowOpt {
     /// initialiser runs once over all refined candidates, and the safety
     /// filter `sf` (built for the enforced problems' team and obstacle
     /// count) refines them all on `settings.threads` threads. `seed` seeds
-    /// the flow noise. With a `deadline`, the safety filter stops there
-    /// ([`Stop::Deadline`]) with its best iterate. Returns one outcome per
+    /// the flow noise. The safety filter stops ([`Stop::Deadline`],
+    /// [`Stop::Cancelled`]) with its current iterate once `budget` is spent. Returns one outcome per
     /// query, in order; their stage times are the batch's.
     pub fn plan_batch(
         &self,
@@ -276,7 +276,7 @@ impl FlowOpt {
         sf: &Engine,
         settings: &PipelineSettings,
         seed: u64,
-        deadline: Option<Instant>,
+        budget: &Budget<'_>,
     ) -> Result<Vec<PipelineOutcome>, ModelError> {
         let Some(first) = queries.first() else { return Ok(Vec::new()) };
         for q in queries {
@@ -367,7 +367,7 @@ impl FlowOpt {
         }
         let initialised = Instant::now();
 
-        let mut refined = refine(queries, sf, &samples, &jobs, starts, settings.threads, deadline)?.into_iter();
+        let mut refined = refine(queries, sf, &samples, &jobs, starts, settings.threads, budget)?.into_iter();
         let filtered = Instant::now();
 
         let mut outcomes = Vec::with_capacity(queries.len());
@@ -478,17 +478,14 @@ fn refine(
     jobs: &[(usize, usize, f64)],
     starts: Vec<AmState>,
     threads: usize,
-    deadline: Option<Instant>,
+    budget: &Budget<'_>,
 ) -> Result<Vec<Refined>, ModelError> {
     crate::runtime::strided(jobs.len(), threads, |j| {
         let (qi, i, primal) = jobs[j];
         let problem = queries[qi].enforced;
         let prepared = sf.prepare(problem, Some(&samples[qi][i]))?;
         let start = &starts[j];
-        let outcome = match deadline {
-            Some(d) => sf.run_until(&prepared, start.clone(), d),
-            None => sf.run(&prepared, start.clone()),
-        };
+        let outcome = sf.run_within(&prepared, start.clone(), budget);
         let smoothness = JointPlan::new(&problem.team, outcome.state.xi.clone()).smoothness(problem.team.samples);
         Ok(Some(Refined { rank: 0, sample_primal: primal, prepared, start: start.clone(), outcome, smoothness }))
     })

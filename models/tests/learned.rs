@@ -10,7 +10,7 @@ use flowopt_models::flow::FlowConfig;
 use flowopt_models::init::InitConfig;
 use flowopt_models::pipeline::{FlowOpt, PipelineSettings};
 use flowopt_models::train::{InitData, TrainConfig, train_flow, train_init};
-use flowopt_planner::am::{AmSettings, Engine, Objective};
+use flowopt_planner::am::{AmSettings, Budget, Engine, Objective};
 use flowopt_planner::metrics::Metrics;
 use flowopt_planner::plan::JointPlan;
 
@@ -92,7 +92,7 @@ fn tiny_networks_learn_and_the_pipeline_plans_with_them() {
     let problem = flowopt_planner::scenario::RandomScenario::new(team.clone()).with_obstacles(1).generate(3).unwrap();
     let sf = Engine::new(&team, 1, Objective::filter(init_cfg.sf_smoothing), AmSettings::safety_filter()).unwrap();
     let settings = PipelineSettings { candidates: 6, steps: 2, top_k: 3, ..PipelineSettings::default() };
-    let out = planner.plan(&problem, &sf, &settings, 1, None).unwrap();
+    let out = planner.plan(&problem, &sf, &settings, 1, &Budget::unlimited()).unwrap();
     assert_eq!((out.samples.len(), out.refined.len()), (6, 3));
     assert!(out.refined.windows(2).all(|w| w[0].sample_primal <= w[1].sample_primal), "ranked by primal residual");
     let m = Metrics::measure(&problem, &JointPlan::new(&team, out.xi().to_vec()));
@@ -100,9 +100,9 @@ fn tiny_networks_learn_and_the_pipeline_plans_with_them() {
     assert_eq!(out.verified, m.success(team.separation().0), "a verified plan passes the success verdict");
     assert!(out.times.total_ms >= out.times.sample_ms + out.times.filter_ms);
     // Same seed, same plan; another seed, other samples.
-    let again = planner.plan(&problem, &sf, &settings, 1, None).unwrap();
+    let again = planner.plan(&problem, &sf, &settings, 1, &Budget::unlimited()).unwrap();
     assert_eq!(again.xi(), out.xi());
-    let other = planner.plan(&problem, &sf, &settings, 2, None).unwrap();
+    let other = planner.plan(&problem, &sf, &settings, 2, &Budget::unlimited()).unwrap();
     assert_ne!(other.samples[0], out.samples[0]);
     std::fs::remove_dir_all(&dir).unwrap();
 }
@@ -135,8 +135,8 @@ fn an_untrained_initialiser_is_the_plain_start() {
     let sf = Engine::new(&team, 0, Objective::Projection, AmSettings::safety_filter()).unwrap();
     let with = PipelineSettings { candidates: 4, steps: 1, top_k: 2, ..PipelineSettings::default() };
     let without = PipelineSettings { use_init: false, ..with.clone() };
-    let a = planner.plan(&problem, &sf, &with, 9, None).unwrap();
-    let b = planner.plan(&problem, &sf, &without, 9, None).unwrap();
+    let a = planner.plan(&problem, &sf, &with, 9, &Budget::unlimited()).unwrap();
+    let b = planner.plan(&problem, &sf, &without, 9, &Budget::unlimited()).unwrap();
     for (x, y) in a.refined.iter().zip(&b.refined) {
         assert_eq!(x.start, y.start);
     }

@@ -10,7 +10,9 @@
 //!   and as the from-scratch optimiser;
 //! - [`route`]: obstacle-aware cold starts for the optimiser;
 //! - [`reference`]: the smoothest curves through the boundary values;
-//! - [`plan`]: a joint plan and its evaluation;
+//! - [`plan`]: a joint plan, its evaluation, its warm-start shift and time
+//!   scaling;
+//! - [`stopping`]: the problem of bringing robots to rest along their motion;
 //! - [`metrics`]: smoothness, arc length, clearances, the success verdict,
 //!   time scaling;
 //! - [`working_point`]: the safety filter's benchmark working point, shared
@@ -26,4 +28,5 @@ pub mod problem;
 pub mod reference;
 pub mod route;
 pub mod scenario;
+pub mod stopping;
 pub mod working_point;

@@ -4,7 +4,7 @@
 use nalgebra::Vector3;
 
 use crate::basis::{BOUNDARY_ROWS, bernstein_row};
-use crate::problem::{Dim, Problem, Team};
+use crate::problem::{Dim, Problem, StartState, Team};
 use crate::route::Fitter;
 
 /// Position, velocity and acceleration of one robot at one instant.
@@ -93,6 +93,36 @@ impl JointPlan {
         self.sampled(samples, 2).iter().map(|a| a * a).sum::<f64>() / self.robots as f64
     }
 
+    /// The largest distance (m) between any robot's measured position in
+    /// `starts` and where this plan has it `t` seconds after its origin:
+    /// how far the robots are from following it.
+    pub fn deviation(&self, t: f64, starts: &[StartState]) -> f64 {
+        self.at(t).iter().zip(starts).map(|(k, s)| (k.position - s.position).norm()).fold(0.0, f64::max)
+    }
+
+    /// The largest speed (m/s) and acceleration (m/s^2) of any robot at
+    /// `samples` evenly spaced instants.
+    pub fn peak_rates(&self, samples: usize) -> (f64, f64) {
+        let peak = |order: usize| {
+            let series = self.sampled(samples, order);
+            let n = self.robots;
+            (0..n * samples)
+                .map(|j| {
+                    let (i, s) = (j / samples, j % samples);
+                    (0..self.dim.axes()).map(|a| series[(a * n + i) * samples + s].powi(2)).sum::<f64>().sqrt()
+                })
+                .fold(0.0, f64::max)
+        };
+        (peak(1), peak(2))
+    }
+
+    /// The same paths over a horizon `factor` times as long: speeds divide
+    /// by `factor`, accelerations by its square (the paper's post-hoc time
+    /// scaling; the start velocity and acceleration scale too).
+    pub fn stretched(&self, factor: f64) -> JointPlan {
+        JointPlan { horizon: self.horizon * factor, ..self.clone() }
+    }
+
     /// This plan as a warm start `dt` seconds after its origin, for
     /// `problem` (the same team, measured then): the positions from `dt` on
     /// (held at the goal past the end) sampled at the `K` instants of a new
@@ -145,7 +175,6 @@ mod tests {
 
     use super::*;
     use crate::metrics::Metrics;
-    use crate::problem::StartState;
     use crate::reference::SmoothReference;
 
     #[test]
@@ -179,5 +208,29 @@ mod tests {
                 assert!((new.position - old.position).norm() < 0.01, "t = {t}: {new:?} vs {old:?}");
             }
         }
+    }
+
+    #[test]
+    fn deviation_peak_rates_and_stretching_agree_with_the_metrics() {
+        let team = Team::default_for(Dim::Two, 2);
+        let at = |x: f64, y: f64| Vector3::new(x, y, 0.0);
+        let problem = Problem {
+            team: team.clone(),
+            starts: vec![StartState::at_rest(at(-0.6, 0.2)), StartState::at_rest(at(0.5, -0.4))],
+            goals: vec![at(0.6, -0.1), at(-0.3, 0.7)],
+            obstacles: vec![],
+        };
+        let plan = JointPlan::new(&team, SmoothReference::new(&team).unwrap().coefficients(&problem));
+        assert!(plan.deviation(0.0, &problem.starts) < 1e-12);
+        let mut moved = problem.starts.clone();
+        moved[1].position.x += 0.03;
+        assert!((plan.deviation(0.0, &moved) - 0.03).abs() < 1e-12);
+        let m = Metrics::measure(&problem, &plan);
+        let (speed, acceleration) = plan.peak_rates(4 * team.samples);
+        assert!((speed - m.max_speed).abs() < 1e-12 && (acceleration - m.max_acceleration).abs() < 1e-12);
+        let slow = plan.stretched(2.0);
+        let (s2, a2) = slow.peak_rates(4 * team.samples);
+        assert!((s2 - speed / 2.0).abs() < 1e-12 && (a2 - acceleration / 4.0).abs() < 1e-12);
+        assert_eq!(slow.at(2.0 * 1.3)[1].position, plan.at(1.3)[1].position);
     }
 }

@@ -215,11 +215,11 @@ impl Team {
         if self.robots == 0 {
             return Err(ProblemError::NoRobots);
         }
-        positive(self.robot.radius, Field::RobotRadius)?;
+        positive(self.robot.radius, Field::RobotRadius, 0)?;
         if self.dim == Dim::Three {
-            positive(self.robot.half_height, Field::RobotHalfHeight)?;
+            positive(self.robot.half_height, Field::RobotHalfHeight, 0)?;
         }
-        positive(self.horizon, Field::Horizon)?;
+        positive(self.horizon, Field::Horizon, 0)?;
         for a in 0..self.dim.axes() {
             finite(self.workspace.min[a], Field::Workspace, 0)?;
             finite(self.workspace.max[a], Field::Workspace, 1)?;
@@ -305,8 +305,13 @@ pub enum ProblemError {
         index: usize,
     },
     /// A size or duration is zero or negative.
-    #[error("ProblemError::NonPositive: {0:?} must be positive")]
-    NonPositive(Field),
+    #[error("ProblemError::NonPositive: {field:?} #{index} must be positive")]
+    NonPositive {
+        /// Which input.
+        field: Field,
+        /// Obstacle index (0 for the team's own sizes).
+        index: usize,
+    },
     /// A list has the wrong length.
     #[error("ProblemError::WrongCount: {field:?} has {got} entries, expected {expected}")]
     WrongCount {
@@ -378,9 +383,9 @@ fn finite_vec(v: &Vector3<f64>, dim: Dim, field: Field, index: usize) -> Result<
     (0..dim.axes()).try_for_each(|a| finite(v[a], field, index))
 }
 
-fn positive(v: f64, field: Field) -> Result<(), ProblemError> {
-    finite(v, field, 0)?;
-    if v > 0.0 { Ok(()) } else { Err(ProblemError::NonPositive(field)) }
+fn positive(v: f64, field: Field, index: usize) -> Result<(), ProblemError> {
+    finite(v, field, index)?;
+    if v > 0.0 { Ok(()) } else { Err(ProblemError::NonPositive { field, index }) }
 }
 
 impl Problem {
@@ -436,9 +441,9 @@ impl Problem {
         for (m, o) in self.obstacles.iter().enumerate() {
             finite_vec(&o.position, dim, Field::ObstaclePosition, m)?;
             finite_vec(&o.velocity, dim, Field::ObstacleVelocity, m)?;
-            positive(o.shape.radius, Field::ObstacleSize)?;
+            positive(o.shape.radius, Field::ObstacleSize, m)?;
             if dim == Dim::Three {
-                positive(o.shape.half_height, Field::ObstacleSize)?;
+                positive(o.shape.half_height, Field::ObstacleSize, m)?;
             }
         }
         let (a, _) = team.separation();
@@ -560,17 +565,17 @@ mod tests {
     fn non_positive_sizes_are_rejected() {
         let mut p = two_robot_problem();
         p.team.robot.radius = 0.0;
-        assert_eq!(p.validate(), Err(ProblemError::NonPositive(Field::RobotRadius)));
+        assert_eq!(p.validate(), Err(ProblemError::NonPositive { field: Field::RobotRadius, index: 0 }));
         let mut p = two_robot_problem();
         p.obstacles.push(Obstacle {
             position: Vector3::new(0.0, 0.6, 0.0),
             velocity: Vector3::zeros(),
             shape: Spheroid::ball(-0.1),
         });
-        assert_eq!(p.validate(), Err(ProblemError::NonPositive(Field::ObstacleSize)));
+        assert_eq!(p.validate(), Err(ProblemError::NonPositive { field: Field::ObstacleSize, index: 0 }));
         let mut p = two_robot_problem();
         p.team.horizon = -1.0;
-        assert_eq!(p.validate(), Err(ProblemError::NonPositive(Field::Horizon)));
+        assert_eq!(p.validate(), Err(ProblemError::NonPositive { field: Field::Horizon, index: 0 }));
     }
 
     #[test]

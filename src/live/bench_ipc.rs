@@ -59,7 +59,7 @@ pub fn run(args: BenchIpcArgs) -> Result<()> {
     let channel = TeamChannel::new(&prefix, TEAM)?;
     let endpoint = Endpoint::new("flowopt-bench-ipc")?;
     let mut states = endpoint.state_publisher(&channel)?;
-    let plans = endpoint.plan_subscriber(&channel)?;
+    let mut plans = endpoint.plan_subscriber(&channel)?;
     let exe = std::env::current_exe()?;
     let mut peer = Command::new(exe)
         .args(["bench-ipc", "--echo", &prefix])
@@ -151,10 +151,12 @@ fn echo(prefix: &str) -> Result<()> {
         let (sequence, timestamp) = (snapshot.sequence, snapshot.timestamp_ns);
         drop(snapshot);
         plans.publish_with(|p| {
-            p.status = PlanStatus::Ok;
+            p.set_status(PlanStatus::Ok);
             let _ = p.write_plan(&plan);
             p.answers_sequence = sequence;
             p.state_timestamp_ns = timestamp;
+            p.plan_sequence = sequence;
+            p.plan_origin_ns = timestamp;
         })?;
     }
 }

@@ -4,5 +4,6 @@
 pub mod bench_ipc;
 pub mod daemon_args;
 pub mod demo;
+pub mod faults;
 pub mod serve;
 pub mod sim;

@@ -8,7 +8,7 @@ use std::path::PathBuf;
 
 use flowopt_models::flow::Solver;
 use flowopt_models::pipeline::{LearnedPlanner, PipelineOutcome, PipelineSettings, PipelineTimes, Query};
-use flowopt_planner::am::{AmOutcome, AmSettings, Engine, EngineSet, Objective, Residuals, Stop};
+use flowopt_planner::am::{AmOutcome, AmSettings, Budget, Engine, EngineSet, Objective, Residuals, Stop};
 use flowopt_planner::metrics::Metrics;
 use flowopt_planner::plan::JointPlan;
 use flowopt_planner::problem::{Problem, Team};
@@ -334,8 +334,9 @@ impl Planner {
         let queries: Vec<Query> = seen.iter().zip(problems).map(|(seen, enforced)| Query { seen, enforced }).collect();
         let sf = self.engines[set].get(obstacles).context("the filter was built")?;
         let start = Instant::now();
-        let outcomes =
-            model.plan_batch(&queries, sf, &args.settings(method), seed, None).context("running the pipeline")?;
+        let outcomes = model
+            .plan_batch(&queries, sf, &args.settings(method), seed, &Budget::unlimited())
+            .context("running the pipeline")?;
         Ok((outcomes, start.elapsed().as_secs_f64() * 1e3))
     }
 

@@ -43,6 +43,7 @@ mod step;
 pub use engine::{AmOutcome, AmState, Engine, EngineError, FIRST_CONSTRAINED_SAMPLE, Objective, Residuals};
 pub use prepare::Prepared;
 pub use projection::Limits;
+pub use run::Budget;
 pub use set::EngineSet;
 pub use settings::{AmSettings, RhoSchedule, Stop};
 pub use start::Rerouter;

@@ -1,6 +1,6 @@
 //! Running the iterations: stopping rules (tolerance, dense verification,
-//! iteration cap, deadline), the optimiser's restarts, and the checks a
-//! stop is decided by.
+//! iteration cap, deadline, cancellation), the optimiser's restarts, and the
+//! checks a stop is decided by.
 
 use std::time::Instant;
 
@@ -10,9 +10,58 @@ use super::projection::Projection;
 use super::settings::Stop;
 use crate::problem::Problem;
 
-/// Iterations between two deadline checks (a clock read costs about as
+/// Iterations between two budget checks (a clock read costs about as
 /// much as a tenth of a small team's iteration).
 const DEADLINE_CHECK_EVERY: usize = 4;
+
+/// When a run must stop before its own stopping rules: a deadline
+/// ([`Stop::Deadline`]), a cancellation ([`Stop::Cancelled`]), both or
+/// neither; checked every few iterations.
+#[derive(Clone, Copy, Default)]
+pub struct Budget<'a> {
+    /// Stop once this instant has passed.
+    pub deadline: Option<Instant>,
+    /// Stop once this returns `true` (another thread's plan won, newer
+    /// goals arrived).
+    pub cancelled: Option<&'a (dyn Fn() -> bool + Sync)>,
+}
+
+impl std::fmt::Debug for Budget<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Budget")
+            .field("deadline", &self.deadline)
+            .field("cancellable", &self.cancelled.is_some())
+            .finish()
+    }
+}
+
+impl<'a> Budget<'a> {
+    /// No limit but the run's own rules.
+    pub fn unlimited() -> Self {
+        Self::default()
+    }
+
+    /// Stop at `deadline`.
+    pub fn until(deadline: Instant) -> Self {
+        Self { deadline: Some(deadline), cancelled: None }
+    }
+
+    /// Also stop once `cancelled` returns `true`.
+    pub fn or_cancelled(self, cancelled: &'a (dyn Fn() -> bool + Sync)) -> Self {
+        Self { cancelled: Some(cancelled), ..self }
+    }
+
+    /// Why to stop now, if the budget is spent.
+    pub fn spent(&self) -> Option<Stop> {
+        if self.cancelled.is_some_and(|c| c()) {
+            Some(Stop::Cancelled)
+        } else if self.deadline.is_some_and(|d| Instant::now() >= d) {
+            Some(Stop::Deadline)
+        } else {
+            None
+        }
+    }
+}
 
 impl Engine {
     /// Validates, prepares and optimises from the cold start, restarting
@@ -25,12 +74,12 @@ impl Engine {
 
     /// [`Self::solve`] for an already prepared problem.
     pub fn solve_prepared(&self, prepared: &Prepared) -> AmOutcome {
-        self.solve_prepared_until(prepared, None)
+        self.solve_prepared_within(prepared, &Budget::unlimited())
     }
 
-    /// [`Self::solve_prepared`] that also stops ([`Stop::Deadline`]) with the
-    /// best iterate so far once `deadline` has passed.
-    pub fn solve_prepared_until(&self, prepared: &Prepared, deadline: Option<Instant>) -> AmOutcome {
+    /// [`Self::solve_prepared`] that also stops ([`Stop::Deadline`],
+    /// [`Stop::Cancelled`]) with the current iterate once `budget` is spent.
+    pub fn solve_prepared_within(&self, prepared: &Prepared, budget: &Budget<'_>) -> AmOutcome {
         let attempts = self.settings.restarts + 1;
         let share = self.settings.max_iterations / attempts;
         let mut iterations = 0;
@@ -43,11 +92,11 @@ impl Engine {
             }
             let cap =
                 if attempt + 1 == attempts { self.settings.max_iterations - share * (attempts - 1) } else { share };
-            let mut outcome = self.run_capped(prepared, state, cap, deadline);
+            let mut outcome = self.run_capped(prepared, state, cap, budget);
             iterations += outcome.iterations;
             history.append(&mut outcome.history);
             let done = outcome.stop != Stop::IterationCap;
-            if outcome.stop == Stop::Deadline {
+            if matches!(outcome.stop, Stop::Deadline | Stop::Cancelled) {
                 best = Some(outcome);
                 break;
             }
@@ -81,16 +130,16 @@ impl Engine {
 
     /// Iterates from `state` under the stopping rules of [`AmSettings`].
     pub fn run(&self, prepared: &Prepared, state: AmState) -> AmOutcome {
-        self.run_capped(prepared, state, self.settings.max_iterations, None)
+        self.run_within(prepared, state, &Budget::unlimited())
     }
 
-    /// [`Self::run`] that also stops ([`Stop::Deadline`]) once `deadline`
-    /// has passed.
-    pub fn run_until(&self, prepared: &Prepared, state: AmState, deadline: Instant) -> AmOutcome {
-        self.run_capped(prepared, state, self.settings.max_iterations, Some(deadline))
+    /// [`Self::run`] that also stops ([`Stop::Deadline`],
+    /// [`Stop::Cancelled`]) once `budget` is spent.
+    pub fn run_within(&self, prepared: &Prepared, state: AmState, budget: &Budget<'_>) -> AmOutcome {
+        self.run_capped(prepared, state, self.settings.max_iterations, budget)
     }
 
-    fn run_capped(&self, prepared: &Prepared, mut state: AmState, cap: usize, deadline: Option<Instant>) -> AmOutcome {
+    fn run_capped(&self, prepared: &Prepared, mut state: AmState, cap: usize, budget: &Budget<'_>) -> AmOutcome {
         let dim = self.team.dim;
         let n = self.team.robots;
         let mut projection = Projection::new(dim, n, &self.grid);
@@ -111,8 +160,8 @@ impl Engine {
                 Some(Stop::Verified)
             } else if iterations >= cap {
                 Some(Stop::IterationCap)
-            } else if deadline.is_some_and(|d| iterations % DEADLINE_CHECK_EVERY == 0 && Instant::now() >= d) {
-                Some(Stop::Deadline)
+            } else if iterations % DEADLINE_CHECK_EVERY == 0 {
+                budget.spent()
             } else {
                 None
             };
@@ -177,18 +226,21 @@ mod tests {
     }
 
     #[test]
-    fn a_passed_deadline_stops_the_optimiser_with_its_current_iterate() {
+    fn a_passed_deadline_or_a_cancellation_stops_the_optimiser_with_its_current_iterate() {
         let team = Team::default_for(Dim::Two, 16);
         let problem = RandomScenario::new(team.clone()).generate(5).unwrap();
         let engine = optimiser(&team, 0);
         let prepared = engine.prepare(&problem, None).unwrap();
         assert!(!engine.verify(&prepared, &engine.cold_start(&prepared).xi), "the straight lines collide");
-        let outcome = engine.solve_prepared_until(&prepared, Some(Instant::now()));
+        let outcome = engine.solve_prepared_within(&prepared, &Budget::until(Instant::now()));
         assert_eq!(outcome.stop, Stop::Deadline);
         assert_eq!(outcome.iterations, 0);
         assert_eq!(outcome.state.xi, engine.cold_start(&prepared).xi);
-        let unhurried = engine.solve_prepared_until(&prepared, None);
+        let unhurried = engine.solve_prepared_within(&prepared, &Budget::unlimited());
         assert_eq!(unhurried.stop, Stop::Verified);
+        let cancelled = || true;
+        let outcome = engine.solve_prepared_within(&prepared, &Budget::unlimited().or_cancelled(&cancelled));
+        assert_eq!((outcome.stop, outcome.iterations), (Stop::Cancelled, 0));
     }
 
     #[test]

@@ -157,6 +157,8 @@ pub enum Stop {
     IterationCap,
     /// The caller's deadline passed first.
     Deadline,
+    /// The caller cancelled the run.
+    Cancelled,
 }
 
 #[cfg(test)]

@@ -1,0 +1,474 @@
+//! `flowopt sim`: simulated mocap and controllers. A team of
+//! double-integrator robots follows what the followability contract says
+//! (the client library's [`flowopt_client::PlanSubscriber::to_follow`]:
+//! a verified trajectory, or none, and then they brake) with a PD
+//! controller plus the trajectory's acceleration as feedforward, and
+//! publishes its measured state at the control rate. When every robot has
+//! reached its goal, the team gets new goals. The published states carry
+//! mocap noise and the robots an unmodelled acceleration disturbance
+//! (seeded), so tracking is imperfect as on real robots.
+//!
+//! Every trajectory taken up is checked independently of the daemon:
+//! collision-free on a dense grid (within the success tolerance) and
+//! starting where the robots are; a failure counts as
+//! `followed_unverified`. With `--faults` the simulator injects the
+//! controller-side faults of [`crate::live::faults::SCHEDULE`] and reports
+//! every fault's window separately.
+
+mod robots;
+mod tally;
+
+use std::collections::HashMap;
+use std::io::Write;
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result, bail};
+use clap::Args;
+use flowopt_client::clock::monotonic_ns;
+use flowopt_client::{Endpoint, JointTrajectory, PlanStatus, PlanSubscriber, Reason, StatePublisher, TeamChannel};
+use flowopt_planner::metrics::Metrics;
+use flowopt_planner::problem::{Problem, StartState, Team};
+use flowopt_planner::scenario::RandomScenario;
+use hdrhistogram::Histogram;
+use serde::{Deserialize, Serialize};
+
+use crate::live::daemon_args::DaemonArgs;
+use crate::live::faults::{Fault, SCHEDULE, Scheduled};
+use robots::Robots;
+pub use tally::Tally;
+
+/// How far (m) a trajectory taken up may start from the robots' true
+/// positions before the independent check counts it as unverified.
+const START_TOLERANCE: f64 = 0.05;
+
+/// Run simulated robots against a running daemon.
+#[derive(Debug, Args)]
+pub struct SimArgs {
+    #[command(flatten)]
+    pub daemon: DaemonArgs,
+    /// Team to simulate (default: the configuration's first).
+    #[arg(long)]
+    pub team: Option<String>,
+    /// Seconds to run after the daemon first answers.
+    #[arg(long, default_value_t = 30.0)]
+    pub seconds: f64,
+    /// Control and state-publishing rate (Hz).
+    #[arg(long, default_value_t = 50.0)]
+    pub rate_hz: f64,
+    /// Seed of the start positions and of every goal set.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Give up if no plan arrives within this many seconds of starting.
+    #[arg(long, default_value_t = 20.0)]
+    pub connect_timeout: f64,
+    /// Inject the controller-side faults of the fault schedule and report
+    /// each fault's window (prints a `{"ready":true}` line when the run
+    /// starts, for the demo to time its own faults by).
+    #[arg(long)]
+    pub faults: bool,
+    /// Print one JSON object instead of text.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// One fault's window of a run.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct FaultReport {
+    /// The fault.
+    pub fault: String,
+    /// When it was injected (s into the run).
+    pub at_s: f64,
+    /// Where its window ends (s).
+    pub until_s: f64,
+    /// What the window saw.
+    #[serde(flatten)]
+    pub tally: Tally,
+}
+
+/// What a simulation run saw.
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
+pub struct SimReport {
+    /// Seconds simulated (after the first answer).
+    pub seconds: f64,
+    /// Control rate (Hz).
+    pub rate_hz: f64,
+    /// Robots.
+    pub robots: usize,
+    /// Snapshots published.
+    pub snapshots: u64,
+    /// Messages answering the newest snapshot published when they arrived.
+    pub plans_answering_newest: u64,
+    /// Snapshot timestamp to the receipt of its answer, median (ms).
+    pub latency_p50_ms: f64,
+    /// 99th percentile (ms).
+    pub latency_p99_ms: f64,
+    /// Maximum (ms).
+    pub latency_max_ms: f64,
+    /// New plans that were warm-started.
+    pub warm: u64,
+    /// The whole run.
+    #[serde(flatten)]
+    pub overall: Tally,
+    /// Mean distance from the followed position (m).
+    pub mean_tracking_error_m: f64,
+    /// Largest distance from the followed position (m).
+    pub max_tracking_error_m: f64,
+    /// Goal sets reached by the whole team.
+    pub goal_sets_reached: u64,
+    /// Per injected fault (with `--faults`).
+    pub faults: Vec<FaultReport>,
+}
+
+/// Runs `flowopt sim`.
+pub fn run(args: SimArgs) -> Result<()> {
+    let report = simulate(&args)?;
+    if args.json {
+        println!("{}", serde_json::to_string(&report)?);
+    } else {
+        print_report(&report);
+    }
+    Ok(())
+}
+
+/// Prints a report for people.
+pub fn print_report(r: &SimReport) {
+    let t = &r.overall;
+    println!(
+        "{} robots, {:.0} s at {:.0} Hz: {} snapshots, {} messages",
+        r.robots, r.seconds, r.rate_hz, r.snapshots, t.plans
+    );
+    println!("statuses         {:?} (warm-started {})", t.statuses, r.warm);
+    println!("reasons          {:?}", t.reasons);
+    println!("answering newest {} of {}", r.plans_answering_newest, t.plans);
+    println!(
+        "state-to-answer  p50 {:.2} ms, p99 {:.2} ms, max {:.2} ms",
+        r.latency_p50_ms, r.latency_p99_ms, r.latency_max_ms
+    );
+    println!(
+        "contacts         {} (closest approach {:.3} of the separation), followed unverified {}",
+        t.contacts,
+        t.closest_approach.unwrap_or(f64::NAN),
+        t.followed_unverified
+    );
+    println!("without a plan   longest {:.0} ms", t.longest_without_plan_ms);
+    println!("tracking error   mean {:.4} m, max {:.4} m", r.mean_tracking_error_m, r.max_tracking_error_m);
+    println!("goal sets        {} reached", r.goal_sets_reached);
+    for f in &r.faults {
+        println!(
+            "fault {:<18} at {:>5.1} s: contacts {}, closest {:.3}, unverified {}, longest without plan {:.0} ms, injected {} (rejected as expected {}), statuses {:?}",
+            f.fault,
+            f.at_s,
+            f.tally.contacts,
+            f.tally.closest_approach.unwrap_or(f64::NAN),
+            f.tally.followed_unverified,
+            f.tally.longest_without_plan_ms,
+            f.tally.injected,
+            f.tally.rejected_as_expected,
+            f.tally.statuses
+        );
+    }
+}
+
+/// A controller process's ports (dropped and recreated by a restart).
+struct Controller {
+    _endpoint: Endpoint,
+    states: StatePublisher,
+    plans: PlanSubscriber,
+}
+
+impl Controller {
+    fn open(channel: &TeamChannel) -> Result<Self> {
+        let endpoint = Endpoint::new("flowopt-sim")?;
+        let states = endpoint.state_publisher(channel)?;
+        let plans = endpoint.plan_subscriber(channel)?;
+        Ok(Self { _endpoint: endpoint, states, plans })
+    }
+}
+
+/// The run's counters: the whole run and every fault window.
+struct Counters {
+    overall: Tally,
+    windows: Vec<(Scheduled, Tally)>,
+    latency_us: Histogram<u64>,
+    warm: u64,
+    answering_newest: u64,
+    /// Injected snapshots: sequence -> (window, expected reason).
+    expected: HashMap<u64, (usize, Reason)>,
+}
+
+impl Counters {
+    /// Applies `f` to the overall tally and to every window covering `t`.
+    fn each(&mut self, t: f64, mut f: impl FnMut(&mut Tally)) {
+        f(&mut self.overall);
+        for (w, tally) in &mut self.windows {
+            if w.covers(t) {
+                f(tally);
+            }
+        }
+    }
+
+    /// Counts a received message at `t` s into the run.
+    fn message(&mut self, msg: &JointTrajectory, t: f64, newest: u64, since_ns: u64) {
+        let status = match msg.status() {
+            Ok(PlanStatus::Ok) => "ok",
+            Ok(PlanStatus::Held) => "held",
+            Ok(PlanStatus::Stopping) => "stopping",
+            Ok(PlanStatus::NoPlan) => "no_plan",
+            Err(_) => "unreadable",
+        };
+        let reason = match msg.reason() {
+            Ok(Reason::None) => None,
+            Ok(r) => Some(format!("{r:?}")),
+            Err(_) => Some("unreadable".into()),
+        };
+        self.each(t, |tally| tally.message(status, reason.as_deref()));
+        if msg.status() == Ok(PlanStatus::Ok) && msg.warm_started == 1 {
+            self.warm += 1;
+        }
+        if msg.state_timestamp_ns >= since_ns && msg.state_timestamp_ns > 0 {
+            let latency = monotonic_ns().saturating_sub(msg.state_timestamp_ns) / 1000;
+            let _ = self.latency_us.record(latency.max(1));
+        }
+        if msg.answers_sequence == newest {
+            self.answering_newest += 1;
+        }
+        if let Some((window, expected)) = self.expected.remove(&msg.answers_sequence)
+            && msg.reason() == Ok(expected)
+        {
+            self.overall.rejected_as_expected += 1;
+            self.windows[window].1.rejected_as_expected += 1;
+        }
+    }
+}
+
+/// Whether the trajectory `f` taken up at `now_ns` is collision-free on a
+/// dense grid (within the success tolerance) and starts where the robots
+/// are: the simulator's own check of what it follows.
+fn independently_verified(team: &Team, f: &flowopt_client::Followed, robots: &Robots, now_ns: u64) -> bool {
+    let start = f.at(f.origin_ns);
+    let end = f.plan.at(f.plan.horizon);
+    let problem = Problem {
+        team: Team { horizon: f.plan.horizon, ..team.clone() },
+        starts: start
+            .iter()
+            .map(|k| StartState { position: k.position, velocity: k.velocity, acceleration: k.acceleration })
+            .collect(),
+        goals: end.iter().map(|k| k.position).collect(),
+        obstacles: Vec::new(),
+    };
+    let m = Metrics::measure(&problem, &f.plan);
+    let clear = m.min_robot_scaled >= 1.0 - flowopt_planner::problem::FEASIBILITY_TOLERANCE
+        && m.workspace_excess <= flowopt_planner::problem::FEASIBILITY_TOLERANCE * team.separation().0;
+    let here = f.at(now_ns).iter().zip(&robots.position).all(|(k, p)| (k.position - p).norm() <= START_TOLERANCE);
+    clear && here
+}
+
+fn simulate(args: &SimArgs) -> Result<SimReport> {
+    if !(args.rate_hz > 0.0 && args.seconds >= 0.0) {
+        bail!("--rate-hz must be positive and --seconds not negative");
+    }
+    let (config, team_config) = args.daemon.team(args.team.as_deref())?;
+    let team = team_config.team()?;
+    let scenario = RandomScenario::new(team.clone());
+    let first = scenario.generate(args.seed).context("drawing the start positions")?;
+    let mut robots = Robots::new(&first, args.seed);
+    let channel = TeamChannel::new(&config.ipc.prefix, &team_config.name)?;
+    let mut controller = Some(Controller::open(&channel)?);
+    let period = Duration::from_secs_f64(1.0 / args.rate_hz);
+
+    // Connect: publish the initial state until the daemon answers.
+    let connect_deadline = Instant::now() + Duration::from_secs_f64(args.connect_timeout);
+    let mut newest;
+    loop {
+        let c = controller.as_mut().context("the controller is open")?;
+        let measured = robots.measured();
+        newest = publish(&mut c.states, &measured, monotonic_ns(), |_| {})?;
+        if c.plans.wait(period)?.is_some() {
+            break;
+        }
+        if Instant::now() > connect_deadline {
+            bail!(
+                "no plan on {}/{}/plan within {} s: is the daemon running?",
+                config.ipc.prefix,
+                team_config.name,
+                args.connect_timeout
+            );
+        }
+    }
+    if args.faults {
+        println!("{{\"ready\":true}}");
+        std::io::stdout().flush()?;
+    }
+
+    let schedule: Vec<Scheduled> = if args.faults { SCHEDULE.to_vec() } else { Vec::new() };
+    let mut counters = Counters {
+        overall: Tally::default(),
+        windows: schedule.iter().map(|s| (*s, Tally::default())).collect(),
+        latency_us: Histogram::new_with_bounds(1, 60_000_000, 3)?,
+        warm: 0,
+        answering_newest: 0,
+        expected: HashMap::new(),
+    };
+    let mut done = vec![false; schedule.len()];
+    let mut report = SimReport { rate_hz: args.rate_hz, robots: team.robots, ..SimReport::default() };
+    let started = Instant::now();
+    let mut since_ns = monotonic_ns();
+    let mut next = started;
+    let mut simulated_ns = since_ns;
+    let (mut error_sum, mut error_ticks) = (0.0, 0u64);
+    let mut goal_round = 0;
+    let mut followed_key = None;
+    let mut without_since: Option<f64> = None;
+    let mut restart_at: Option<f64> = None;
+    while started.elapsed().as_secs_f64() < args.seconds {
+        // Messages until the next tick.
+        loop {
+            let now = Instant::now();
+            if now >= next {
+                break;
+            }
+            let Some(c) = controller.as_mut() else {
+                std::thread::sleep(next - now);
+                break;
+            };
+            if let Some(msg) = c.plans.wait(next - now)? {
+                let t = started.elapsed().as_secs_f64();
+                counters.message(&msg, t, newest, since_ns);
+            }
+        }
+        let t = started.elapsed().as_secs_f64();
+        let now_ns = monotonic_ns();
+        // What the contract says to follow, checked when it changes.
+        let followed = controller.as_ref().and_then(|c| c.plans.to_follow()).cloned();
+        let key = followed.as_ref().map(|f| (f.plan_sequence, f.origin_ns, f.status));
+        if key.is_some() && key != followed_key {
+            let f = followed.as_ref().context("a followed plan")?;
+            if !independently_verified(&team, f, &robots, now_ns) {
+                counters.each(t, |tally| tally.followed_unverified += 1);
+            }
+        }
+        followed_key = key;
+        match (&followed, without_since) {
+            (None, None) => without_since = Some(t),
+            (Some(_), Some(since)) => {
+                counters.each(since, |tally| tally.without_plan((t - since) * 1e3));
+                counters.each(t, |tally| tally.without_plan((t - since) * 1e3));
+                without_since = None;
+            }
+            _ => {}
+        }
+        // Physics catches up with the wall clock, then the state is measured.
+        let frozen = schedule.iter().any(|s| s.fault == Fault::Frozen && t >= s.at_s && t < s.at_s + s.lasts_s);
+        let motion = robots.step(followed.as_ref(), frozen, simulated_ns, now_ns);
+        simulated_ns = now_ns;
+        counters.each(t, |tally| {
+            tally.distance(motion.closest, false);
+            tally.contacts += motion.contacts;
+            tally.workspace_excess_m = tally.workspace_excess_m.max(motion.workspace_excess);
+        });
+        if followed.is_some() && !frozen {
+            error_sum += motion.tracking.0;
+            error_ticks += 1;
+            report.max_tracking_error_m = report.max_tracking_error_m.max(motion.tracking.1);
+        }
+        if robots.arrived() {
+            report.goal_sets_reached += 1;
+            goal_round += 1;
+            let fresh = scenario.generate(args.seed.wrapping_add(goal_round)).context("drawing new goals")?;
+            robots.goal = fresh.goals;
+        }
+        // Controller-side faults due now.
+        for (k, s) in schedule.iter().enumerate() {
+            if done[k] || t < s.at_s || s.fault.in_demo() {
+                continue;
+            }
+            done[k] = true;
+            match s.fault {
+                Fault::ControllerRestart => {
+                    controller = None;
+                    restart_at = Some(t + s.lasts_s);
+                }
+                Fault::Frozen => {}
+                fault => {
+                    let Some(c) = controller.as_mut() else { continue };
+                    let measured = robots.measured();
+                    let sequence = publish(&mut c.states, &measured, now_ns, |snapshot| match fault {
+                        Fault::SpeedGlitch => snapshot.robot[0].velocity = [1e6, 0.0, 0.0],
+                        Fault::NanState => snapshot.robot[0].position[0] = f64::NAN,
+                        Fault::ZeroTimestamp => snapshot.timestamp_ns = 0,
+                        _ => snapshot.timestamp_ns = now_ns + 3_600_000_000_000,
+                    })?;
+                    if let Some(reason) = fault.expected_rejection() {
+                        counters.expected.insert(sequence, (k, reason));
+                        counters.overall.injected += 1;
+                        counters.windows[k].1.injected += 1;
+                    }
+                    // Give the answer to the bad snapshot a moment to arrive.
+                    if let Some(msg) = c.plans.wait(period / 2)? {
+                        counters.message(&msg, t, sequence, since_ns);
+                    }
+                }
+            }
+        }
+        if restart_at.is_some_and(|at| t >= at) {
+            controller = Some(Controller::open(&channel)?);
+            since_ns = monotonic_ns();
+            restart_at = None;
+        }
+        if let Some(c) = controller.as_mut() {
+            let measured = robots.measured();
+            newest = publish(&mut c.states, &measured, monotonic_ns(), |_| {})?;
+            report.snapshots += 1;
+        }
+        next += period;
+        let now = Instant::now();
+        if next + period < now {
+            next = now;
+        }
+    }
+    let t = started.elapsed().as_secs_f64();
+    if let Some(since) = without_since {
+        counters.each(since, |tally| tally.without_plan((t - since) * 1e3));
+    }
+    report.seconds = t;
+    report.mean_tracking_error_m = if error_ticks > 0 { error_sum / error_ticks as f64 } else { 0.0 };
+    let h = &counters.latency_us;
+    if !h.is_empty() {
+        report.latency_p50_ms = h.value_at_quantile(0.5) as f64 * 1e-3;
+        report.latency_p99_ms = h.value_at_quantile(0.99) as f64 * 1e-3;
+        report.latency_max_ms = h.max() as f64 * 1e-3;
+    }
+    report.warm = counters.warm;
+    report.plans_answering_newest = counters.answering_newest;
+    report.overall = counters.overall;
+    report.faults = counters
+        .windows
+        .into_iter()
+        .filter(|(s, _)| s.at_s < t)
+        .map(|(s, tally)| FaultReport {
+            fault: s.fault.name().to_string(),
+            at_s: s.at_s,
+            until_s: s.at_s + s.lasts_s + crate::live::faults::SETTLE_S,
+            tally,
+        })
+        .collect();
+    Ok(report)
+}
+
+/// Publishes `measured`, stamped `at_ns`, changed by `edit`; returns its
+/// sequence.
+fn publish(
+    states: &mut StatePublisher,
+    measured: &Problem,
+    at_ns: u64,
+    edit: impl FnOnce(&mut flowopt_client::StateSnapshot),
+) -> Result<u64> {
+    let mut written = Ok(());
+    let sequence = states.publish_with(|s| {
+        s.timestamp_ns = at_ns;
+        written = s.write_problem(measured);
+        edit(s);
+    })?;
+    written?;
+    Ok(sequence)
+}

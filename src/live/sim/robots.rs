@@ -1,0 +1,165 @@
+//! The simulated team: double-integrator robots tracking a trajectory with
+//! a PD controller plus its acceleration as feedforward, braking when there
+//! is none, disturbed by seeded noise; contacts counted on the executed
+//! motion at every integration substep.
+
+use flowopt_client::Followed;
+use flowopt_planner::problem::{Problem, StartState, Team, scaled_norm};
+use nalgebra::Vector3;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use rand_distr::StandardNormal;
+
+/// Position gain (1/s^2): with `KD` a critically damped 5 rad/s loop.
+const KP: f64 = 25.0;
+/// Velocity gain (1/s).
+const KD: f64 = 10.0;
+/// Integration substeps per control period (2 ms at 50 Hz).
+pub const SUBSTEPS: usize = 10;
+/// A robot is at its goal within this distance (m) and below `ARRIVED_SPEED`.
+const ARRIVED_DISTANCE: f64 = 0.02;
+/// Speed (m/s) below which an arrived robot counts as stopped.
+const ARRIVED_SPEED: f64 = 0.05;
+/// Standard deviation of the mocap position noise on published states (m).
+const POSITION_NOISE: f64 = 0.001;
+/// Standard deviation of the velocity-estimate noise (m/s).
+const VELOCITY_NOISE: f64 = 0.005;
+/// Standard deviation of the unmodelled acceleration disturbance, drawn per
+/// robot once per control period (m/s^2).
+const DISTURBANCE: f64 = 0.2;
+
+/// What one control period of motion showed.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Motion {
+    /// Closest robot-robot scaled distance in the period.
+    pub closest: f64,
+    /// Contacts begun in the period.
+    pub contacts: u64,
+    /// Farthest any robot was outside the workspace (m).
+    pub workspace_excess: f64,
+    /// Mean and largest distance from the desired positions at the end (m;
+    /// 0 without a trajectory).
+    pub tracking: (f64, f64),
+}
+
+/// The simulated team.
+pub struct Robots {
+    /// The team.
+    pub team: Team,
+    /// Positions (m).
+    pub position: Vec<Vector3<f64>>,
+    /// Velocities (m/s).
+    pub velocity: Vec<Vector3<f64>>,
+    /// Goals.
+    pub goal: Vec<Vector3<f64>>,
+    touching: Vec<bool>,
+    rng: ChaCha8Rng,
+    disturbance: Vec<Vector3<f64>>,
+}
+
+impl Robots {
+    /// The team at rest at `problem`'s starts with its goals; `seed` seeds
+    /// the noise.
+    pub fn new(problem: &Problem, seed: u64) -> Self {
+        let n = problem.robots();
+        Self {
+            team: problem.team.clone(),
+            position: problem.starts.iter().map(|s| s.position).collect(),
+            velocity: vec![Vector3::zeros(); n],
+            goal: problem.goals.clone(),
+            touching: vec![false; n * n.saturating_sub(1) / 2],
+            rng: ChaCha8Rng::seed_from_u64(seed),
+            disturbance: vec![Vector3::zeros(); n],
+        }
+    }
+
+    /// Advances from `from_ns` to `to_ns` tracking `desired` (braking
+    /// without one); `frozen` robots do not move at all.
+    pub fn step(&mut self, desired: Option<&Followed>, frozen: bool, from_ns: u64, to_ns: u64) -> Motion {
+        let n = self.team.robots;
+        let axes = self.team.dim.axes();
+        let h = to_ns.saturating_sub(from_ns) as f64 * 1e-9 / SUBSTEPS as f64;
+        for w in &mut self.disturbance {
+            for a in 0..axes {
+                w[a] = DISTURBANCE * self.rng.sample::<f64, _>(StandardNormal);
+            }
+        }
+        let mut motion = Motion { closest: f64::INFINITY, ..Motion::default() };
+        for sub in 0..SUBSTEPS {
+            let at = from_ns + ((sub as f64) * h * 1e9) as u64;
+            if frozen {
+                self.velocity.iter_mut().for_each(|v| *v = Vector3::zeros());
+            } else {
+                let target = desired.map(|f| f.at(at));
+                for i in 0..n {
+                    let u = match &target {
+                        Some(d) => {
+                            d[i].acceleration
+                                + KP * (d[i].position - self.position[i])
+                                + KD * (d[i].velocity - self.velocity[i])
+                        }
+                        None => -KD * self.velocity[i],
+                    };
+                    self.velocity[i] += (u + self.disturbance[i]) * h;
+                    self.position[i] += self.velocity[i] * h;
+                }
+            }
+            self.count(&mut motion);
+        }
+        if let Some(f) = desired.filter(|_| !frozen) {
+            let errors: Vec<f64> =
+                f.at(to_ns).iter().zip(&self.position).map(|(d, x)| (d.position - x).norm()).collect();
+            motion.tracking = (errors.iter().sum::<f64>() / n as f64, errors.iter().copied().fold(0.0, f64::max));
+        }
+        motion
+    }
+
+    fn count(&mut self, motion: &mut Motion) {
+        let n = self.team.robots;
+        let (a, b) = self.team.separation();
+        let mut pair = 0;
+        for i in 0..n {
+            for j in i + 1..n {
+                let d = scaled_norm(self.team.dim, &(self.position[i] - self.position[j]), a, b);
+                motion.closest = motion.closest.min(d);
+                let touching = d < 1.0;
+                motion.contacts += u64::from(touching && !self.touching[pair]);
+                self.touching[pair] = touching;
+                pair += 1;
+            }
+            let ws = &self.team.workspace;
+            for ax in 0..self.team.dim.axes() {
+                let out = (ws.min[ax] - self.position[i][ax]).max(self.position[i][ax] - ws.max[ax]);
+                motion.workspace_excess = motion.workspace_excess.max(out);
+            }
+        }
+    }
+
+    /// Whether every robot is at its goal and stopped.
+    pub fn arrived(&self) -> bool {
+        (0..self.team.robots).all(|i| {
+            (self.position[i] - self.goal[i]).norm() < ARRIVED_DISTANCE && self.velocity[i].norm() < ARRIVED_SPEED
+        })
+    }
+
+    /// The state as the mocap measures it (with noise): the problem a
+    /// snapshot describes.
+    pub fn measured(&mut self) -> Problem {
+        let axes = self.team.dim.axes();
+        let mut noise = |sd: f64| {
+            let mut v = Vector3::zeros();
+            for a in 0..axes {
+                v[a] = sd * self.rng.sample::<f64, _>(StandardNormal);
+            }
+            v
+        };
+        let starts = (0..self.team.robots)
+            .map(|i| StartState {
+                position: self.position[i] + noise(POSITION_NOISE),
+                velocity: self.velocity[i] + noise(VELOCITY_NOISE),
+                acceleration: Vector3::zeros(),
+            })
+            .collect();
+        Problem { team: self.team.clone(), starts, goals: self.goal.clone(), obstacles: Vec::new() }
+    }
+}
