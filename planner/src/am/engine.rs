@@ -140,8 +140,12 @@ pub struct Engine {
     pub(super) n_xi: usize,
     /// The constrained samples `1..K`.
     pub(super) grid: SampleGrid,
-    /// The dense verification grid `1..DENSE_FACTOR K` (of `DENSE_FACTOR K`).
+    /// The dense verification grid `1 + verify_skip..DENSE_FACTOR K` (of
+    /// `DENSE_FACTOR K`).
     pub(super) dense: SampleGrid,
+    /// The dense instants `1..=verify_skip` right after the start, checked
+    /// to the feasibility tolerance only.
+    pub(super) dense_start: SampleGrid,
     pub(super) levels: Vec<Level>,
     /// The smoothest curves through the boundary values (optimiser cold start).
     pub(super) reference: SmoothReference,
@@ -166,6 +170,10 @@ impl Engine {
         let dense = SampleGrid::new(
             team.degree,
             (1 + settings.verify_skip..dense_count).map(|s| s as f64 / (dense_count - 1) as f64).collect(),
+        );
+        let dense_start = SampleGrid::new(
+            team.degree,
+            (1..(1 + settings.verify_skip).min(dense_count)).map(|s| s as f64 / (dense_count - 1) as f64).collect(),
         );
         let gram = basis.gram(FIRST_CONSTRAINED_SAMPLE);
         let boundary = basis.boundary_rows();
@@ -203,6 +211,7 @@ impl Engine {
             n_xi,
             grid,
             dense,
+            dense_start,
             levels,
             reference,
             fitter,

@@ -7,7 +7,7 @@ use super::projection::Limits;
 use crate::basis::BOUNDARY_ROWS;
 use crate::kkt::TeamKkt;
 use crate::linalg::{Accum, dot, gemm};
-use crate::problem::Problem;
+use crate::problem::{FEASIBILITY_TOLERANCE, Problem};
 
 /// How exactly a start must meet the boundary conditions to be returned
 /// without an update (normalised time units).
@@ -27,6 +27,9 @@ pub struct Prepared {
     pub(super) constraint: Limits,
     /// True sizes and box on the dense grid.
     pub(super) verify: Limits,
+    /// Sizes and box within the feasibility tolerance on the dense instants
+    /// right after the start.
+    pub(super) verify_start: Limits,
     /// Boundary values `[axis][robot][6]` (normalised time).
     pub(super) boundary: Vec<f64>,
 }
@@ -111,6 +114,12 @@ impl Engine {
             cold,
             constraint: Limits::new(problem, &self.grid, 1.0 + margin, shrink),
             verify: Limits::new(problem, &self.dense, 1.0 + self.settings.verify_margin, [0.0; 3]),
+            verify_start: Limits::new(
+                problem,
+                &self.dense_start,
+                1.0 - FEASIBILITY_TOLERANCE,
+                [-FEASIBILITY_TOLERANCE * t.separation().0; 3],
+            ),
             boundary: b,
         })
     }

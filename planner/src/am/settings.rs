@@ -88,9 +88,10 @@ pub struct AmSettings {
     /// (0: the true sizes). A buffer for robots that track plans imperfectly.
     #[serde(default)]
     pub verify_margin: f64,
-    /// Dense instants right after the start left out of the verification.
-    /// A measured start can be in near-contact; with a `verify_margin` it
-    /// cannot be verified at the very next instants.
+    /// Dense instants right after the start held only to the success
+    /// verdict's tolerance (1% of the separation) instead of the buffered
+    /// true sizes: a measured start can be in near-contact, and with a
+    /// `verify_margin` it could not be verified at the very next instants.
     #[serde(default)]
     pub verify_skip: usize,
 }
