@@ -127,13 +127,24 @@ impl FlowModel {
     }
 
     /// Integrates the flow from `noise` (`[B, n, W]`, t = 0) to t = 1 in
-    /// `steps` steps of `solver`.
-    pub fn sample(&self, noise: &Tensor, encoded: &Encoded, steps: usize, solver: Solver) -> Result<Tensor> {
+    /// `steps` steps of `solver`; `None` when `stop` returns true between
+    /// two steps (the caller no longer needs the samples).
+    pub fn sample(
+        &self,
+        noise: &Tensor,
+        encoded: &Encoded,
+        steps: usize,
+        solver: Solver,
+        stop: &dyn Fn() -> bool,
+    ) -> Result<Option<Tensor>> {
         let steps = steps.max(1);
         let dt = 1.0 / steps as f64;
         let at = |t: f64| Tensor::new(&[t as f32], &Device::Cpu);
         let mut x = noise.clone();
         for s in 0..steps {
+            if stop() {
+                return Ok(None);
+            }
             let t = s as f64 * dt;
             let v = match solver {
                 Solver::Euler => self.velocity(&x, &at(t)?, encoded)?,
@@ -144,7 +155,7 @@ impl FlowModel {
             };
             x = (x + (v * dt)?)?;
         }
-        Ok(x)
+        Ok(Some(x))
     }
 
     /// The conditional flow-matching loss on normalised data tokens `x1`

@@ -52,6 +52,10 @@ pub enum ModelError {
     /// The planner refused a problem or could not be built.
     #[error("ModelError::Engine: {0}")]
     Engine(#[from] flowopt_planner::am::EngineError),
+    /// The caller's budget ran out (a deadline, or another planner won)
+    /// before the samples were drawn.
+    #[error("ModelError::Stopped: the budget ran out while sampling")]
+    Stopped,
     /// The reference curves could not be built.
     #[error("ModelError::Reference: {0}")]
     Reference(#[from] flowopt_planner::reference::ReferenceError),

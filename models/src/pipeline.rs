@@ -217,6 +217,7 @@ impl FlowOpt {
         count: usize,
         settings: &PipelineSettings,
         seed: u64,
+        budget: &Budget<'_>,
     ) -> Result<(Tensor, Tensor, Tensor), ModelError> {
         let first = queries[0].seen;
         let dim = first.team.dim.axes();
@@ -245,7 +246,10 @@ impl FlowOpt {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         let x0 =
             (noise(&mut rng, &[p * count, n, self.flow.config().token_width()], &Device::Cpu)? * settings.temperature)?;
-        let tokens = self.flow.sample(&x0, &encoded, settings.steps, settings.solver)?;
+        let tokens = self
+            .flow
+            .sample(&x0, &encoded, settings.steps, settings.solver, &|| budget.spent().is_some())?
+            .ok_or(ModelError::Stopped)?;
         Ok((tokens, robots, obstacles))
     }
 
@@ -303,7 +307,7 @@ impl FlowOpt {
         let started = Instant::now();
         let count = settings.candidates.max(1);
         let top_k = settings.top_k.clamp(1, count);
-        let (tokens, robots, obstacles) = self.sample(queries, count, settings, seed)?;
+        let (tokens, robots, obstacles) = self.sample(queries, count, settings, seed, budget)?;
         let raw = self.stats.token.denormalise(&tokens)?.flatten_all()?.to_vec1::<f32>()?;
         let sampled = Instant::now();
 

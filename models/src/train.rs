@@ -453,12 +453,17 @@ pub fn train_init(
         let ids: Vec<u32> = (0..train as u32).chain(s.train as u32..(s.train + held) as u32).collect();
         let (robots, obstacles, _) = s.batch(&ids)?;
         let team = flowopt_planner::problem::Team::default_for(config.dimension()?, n);
-        let engine = Engine::new(&team, m, Objective::filter(init.sf_smoothing), AmSettings::safety_filter())?;
+        // The unrolled filter projects onto the fixed separation (no chord
+        // inflation): its engine must too.
+        let settings = AmSettings { chord: false, ..AmSettings::safety_filter() };
+        let engine = Engine::new(&team, m, Objective::filter(init.sf_smoothing), settings)?;
         let sf = UnrolledSf::new(&engine, DType::F32)?;
         let coding = Coding::new(&team)?;
         let encoded = flow_net.encode(&robots, &obstacles)?;
         let x0 = noise(&mut rng, &[ids.len(), n, flow.config.token_width()], &Device::Cpu)?;
-        let sampled = flow_net.sample(&x0, &encoded, samples.flow_steps, crate::flow::Solver::Euler)?;
+        let sampled = flow_net
+            .sample(&x0, &encoded, samples.flow_steps, crate::flow::Solver::Euler, &|| false)?
+            .ok_or_else(|| ModelError::Config("sampling cannot stop here".into()))?;
         let raw = stats.token.denormalise(&sampled)?;
         let width = flow.config.token_width() * n;
         let raw = raw.flatten_all()?.to_vec1::<f32>()?;

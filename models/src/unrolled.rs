@@ -7,7 +7,10 @@
 //! clamps positions into the box, then the multiplier and xi-steps apply
 //! the same pre-factored operators, at the penalty the engine's schedule
 //! gives each iteration. Tensors are `[B, axis, robot, coef]`, the
-//! planner's `[axis][robot][coef]` per problem.
+//! planner's `[axis][robot][coef]` per problem. It projects onto the fixed
+//! (margin-inflated) separation: the planner's chord inflation
+//! (`AmSettings::chord`) is not unrolled, so the initialiser learns the
+//! filter's first iterations without it.
 
 use candle_core::{DType, Device, Result, Tensor};
 use flowopt_planner::am::{Engine, Prepared, RhoSchedule};
@@ -244,7 +247,9 @@ mod tests {
         // A penalty doubling every other iteration: the 5 iterations below
         // run at three levels. The planner runs them without stopping
         // (a tolerance never met, a cap of 5), with its own choice of level.
-        let mut settings = AmSettings::safety_filter().residual_study(-1.0);
+        // The unrolled filter projects onto the fixed separation: the
+        // planner's chord inflation is off for the comparison.
+        let mut settings = AmSettings { chord: false, ..AmSettings::safety_filter().residual_study(-1.0) };
         settings.rho.every = 2;
         settings.max_iterations = 5;
         let engine = Engine::new(&team, 2, objective, settings).unwrap();

@@ -73,7 +73,7 @@ fn tiny_networks_learn_and_the_pipeline_plans_with_them() {
         &flow_path,
         &init_cfg,
         &samples,
-        &TrainConfig { lr: 1e-3, ..train_config(40) },
+        &TrainConfig { lr: 1e-3, ..train_config(80) },
         &init_path,
         &dir.join("ck"),
         |_, _, _| {},

@@ -55,5 +55,23 @@ fn kkt(c: &mut Criterion) {
     }
 }
 
-criterion_group!(benches, iterations, kkt);
+/// Big teams at constant density, from colliding straight curves: the
+/// broad phase against every pair.
+fn scale(c: &mut Criterion) {
+    for robots in [64, 128, 256] {
+        for (broad, name) in [(true, "broad_phase"), (false, "all_pairs")] {
+            let point = WorkingPoint::crowd(robots, Dim::Two, broad).expect("working point");
+            let mut stepper = point.filter.stepper();
+            c.bench_function(&format!("sf_iteration_crowd/{robots}_robots_2d/{name}"), |b| {
+                b.iter_batched_ref(
+                    || point.start.clone(),
+                    |state| black_box(stepper.step(&point.prepared, state, 0)),
+                    BatchSize::SmallInput,
+                )
+            });
+        }
+    }
+}
+
+criterion_group!(benches, iterations, kkt, scale);
 criterion_main!(benches);

@@ -3,6 +3,8 @@
 //! - [`basis`]: the Bernstein basis trajectories are written in;
 //! - [`problem`]: teams, instances, validation;
 //! - [`scenario`]: seeded random instances, antipodal swaps, scenario files;
+//! - [`scenes`]: scene families (random, crowd, swap, crossing, obstacle
+//!   field, formation) at any team size, at constant density;
 //! - [`kkt`]: the structured (mean/difference-mode) KKT solve and its dense
 //!   reference;
 //! - [`linalg`]: the dense products they run on;
@@ -28,5 +30,6 @@ pub mod problem;
 pub mod reference;
 pub mod route;
 pub mod scenario;
+pub mod scenes;
 pub mod stopping;
 pub mod working_point;

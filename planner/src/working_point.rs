@@ -8,7 +8,9 @@ use thiserror::Error;
 
 use crate::am::{AmSettings, AmState, Engine, EngineError, Objective, Prepared};
 use crate::problem::{Dim, Team};
+use crate::reference::{ReferenceError, SmoothReference};
 use crate::scenario::{RandomScenario, ScenarioError};
+use crate::scenes::{Family, Scene};
 
 /// Seed of the working point's instance.
 const INSTANCE_SEED: u64 = 11;
@@ -26,6 +28,9 @@ pub enum WorkingPointError {
     /// The optimiser or the filter failed.
     #[error("WorkingPointError::Engine: {0}")]
     Engine(#[from] EngineError),
+    /// The straight curves could not be built.
+    #[error("WorkingPointError::Reference: {0}")]
+    Reference(#[from] ReferenceError),
 }
 
 /// A safety-filter engine, a prepared problem and the iterate every timed
@@ -53,6 +58,21 @@ impl WorkingPoint {
         let noise = NOISE * team.separation().0;
         let sample: Vec<f64> = solution.iter().map(|x| x + noise * rng.random_range(-1.0..=1.0)).collect();
         let filter = Engine::new(&team, 0, Objective::Projection, AmSettings::safety_filter())?;
+        let prepared = filter.prepare(&problem, Some(&sample))?;
+        let start = filter.cold_start(&prepared);
+        Ok(Self { filter, prepared, start })
+    }
+
+    /// A big team's working point: a seeded crowd of `robots` (random at
+    /// constant density, [`crate::scenes`]) and the smoothest straight
+    /// curves through it as the sample, which collide many times; the filter
+    /// checks pairs with or without the `broad_phase`.
+    pub fn crowd(robots: usize, dim: Dim, broad_phase: bool) -> Result<Self, WorkingPointError> {
+        let (problem, _) = Scene::new(Family::Crowd, dim, robots, INSTANCE_SEED).generate()?;
+        let team = problem.team.clone();
+        let sample = SmoothReference::new(&team)?.coefficients(&problem);
+        let settings = AmSettings { broad_phase, ..AmSettings::safety_filter() };
+        let filter = Engine::new(&team, 0, Objective::Projection, settings)?;
         let prepared = filter.prepare(&problem, Some(&sample))?;
         let start = filter.cold_start(&prepared);
         Ok(Self { filter, prepared, start })

@@ -14,11 +14,11 @@ use crate::offline::methods::{LearnedArgs, Method, Planner, Record, plan_distanc
 use crate::offline::solve::EngineArgs;
 use crate::offline::stats::{IterationStats, mean, quantile};
 
-/// Benchmark a planning method on seeded random instances.
+/// Benchmark a planning method on seeded scenes of a family.
 #[derive(Debug, Args)]
 pub struct BenchArgs {
     /// Planning method.
-    #[arg(long, value_enum, default_value = "baseline")]
+    #[arg(long, value_enum, default_value = "auto")]
     method: Method,
     #[command(flatten)]
     instance: InstanceArgs,
@@ -47,12 +47,16 @@ pub struct BenchArgs {
 pub struct Summary {
     /// Method benchmarked.
     pub method: Method,
+    /// Scene family (`scenario-file` for a file).
+    pub family: String,
     /// Robots per instance.
     pub robots: usize,
     /// Workspace dimension.
     pub dim: usize,
-    /// Obstacles per instance.
+    /// Obstacles per instance (the first's).
     pub obstacles: usize,
+    /// The first instance's scene parameters (its seed is `seed`).
+    pub scene: Option<flowopt_planner::scenes::SceneParams>,
     /// Instances run.
     pub problems: u64,
     /// First seed.
@@ -106,8 +110,12 @@ pub fn run(args: BenchArgs) -> Result<()> {
     progress.set_style(ProgressStyle::with_template("{bar:40} {pos}/{len} {msg} [{elapsed_precise}]")?);
     let started = Instant::now();
     let mut records = Vec::with_capacity(args.problems as usize);
+    let mut first = None;
     for index in 0..args.problems {
-        let problem = args.instance.instance(index)?;
+        let (problem, params) = args.instance.instance(index)?;
+        if index == 0 {
+            first = Some((problem.team.clone(), problem.obstacles.len(), params));
+        }
         let seed = args.instance.seed + index;
         let record = planner.run(args.method, &problem, seed)?;
         if args.diversity > 1 && matches!(args.method, Method::Flowopt | Method::FlowNoInit) {
@@ -136,14 +144,16 @@ pub fn run(args: BenchArgs) -> Result<()> {
     let times: Vec<f64> = records.iter().map(|r| r.time_ms).collect();
     let iterations: Vec<f64> = records.iter().map(|r| r.iterations as f64).collect();
     let successes: Vec<&Record> = records.iter().filter(|r| r.success).collect();
-    let team = args.instance.team();
+    let (team, obstacles, scene) = first.context("no instance was planned")?;
     let to_0_01 = IterationStats::of(records.iter().map(|r| r.iterations_to_0_01));
     let to_0_001 = IterationStats::of(records.iter().map(|r| r.iterations_to_0_001));
     let summary = Summary {
         method: args.method,
+        family: scene.as_ref().map_or("scenario-file".into(), |p| p.family.name().to_string()),
         robots: team.robots,
         dim: team.dim.axes(),
-        obstacles: args.instance.obstacles,
+        obstacles,
+        scene,
         problems: args.problems,
         seed: args.instance.seed,
         success_rate: successes.len() as f64 / records.len().max(1) as f64,
@@ -164,8 +174,9 @@ pub fn run(args: BenchArgs) -> Result<()> {
         println!("{}", serde_json::to_string(&summary)?);
     } else {
         println!(
-            "{:?}: {} robots, {}D, {} obstacles, {} instances (seeds {}..{}), {:.1} s in all",
+            "{:?} on {}: {} robots, {}D, {} obstacles, {} instances (seeds {}..{}), {:.1} s in all",
             summary.method,
+            summary.family,
             summary.robots,
             summary.dim,
             summary.obstacles,

@@ -1,12 +1,13 @@
 //! Command-line selection of problem instances, shared by every subcommand
-//! that plans: a scenario file, the antipodal swap, or seeded random teams.
+//! that plans: a scenario file or a seeded scene of a family.
 
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
 use clap::{Args, ValueEnum};
-use flowopt_planner::problem::{Dim, Problem, Team};
-use flowopt_planner::scenario::{RandomScenario, ScenarioFile, antipodal};
+use flowopt_planner::problem::{Dim, Problem};
+use flowopt_planner::scenario::ScenarioFile;
+use flowopt_planner::scenes::{Family, Scene, SceneParams};
 
 /// Workspace dimension on the command line.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -28,68 +29,88 @@ impl From<DimArg> for Dim {
     }
 }
 
+/// Scene family on the command line.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum FamilyArg {
+    /// Uniform random starts and goals in the default box (the benchmark).
+    Random,
+    /// Uniform random at constant density (the box grows with the team).
+    Crowd,
+    /// Antipodal swap on a circle (2D) or sphere (3D).
+    Swap,
+    /// Two lanes crossing at right angles.
+    Crossing,
+    /// Counterflow through a field of pillars.
+    ObstacleField,
+    /// Grid to ring (or sphere).
+    Formation,
+}
+
+impl From<FamilyArg> for Family {
+    fn from(f: FamilyArg) -> Self {
+        match f {
+            FamilyArg::Random => Family::Random,
+            FamilyArg::Crowd => Family::Crowd,
+            FamilyArg::Swap => Family::Swap,
+            FamilyArg::Crossing => Family::Crossing,
+            FamilyArg::ObstacleField => Family::ObstacleField,
+            FamilyArg::Formation => Family::Formation,
+        }
+    }
+}
+
 /// Which instances to plan.
 #[derive(Debug, Clone, Args)]
 pub struct InstanceArgs {
-    /// Number of robots (random and antipodal instances).
+    /// Scene family (`flowopt_planner::scenes`); the box grows with the team
+    /// for every family but `random`.
+    #[arg(long, value_enum, default_value = "random")]
+    pub family: FamilyArg,
+    /// Number of robots.
     #[arg(long, default_value_t = 16)]
     pub robots: usize,
     /// Workspace dimension.
     #[arg(long, value_enum, default_value = "2")]
     pub dim: DimArg,
-    /// Number of random static obstacles.
+    /// Random and crowd families: number of random static obstacles.
     #[arg(long, default_value_t = 0)]
     pub obstacles: usize,
-    /// Largest obstacle speed (m/s); 0 keeps them static.
+    /// Random and crowd families: largest obstacle speed (m/s); 0 keeps them static.
     #[arg(long, default_value_t = 0.0)]
     pub obstacle_speed: f64,
-    /// Largest random start speed (m/s); 0 plans from rest.
+    /// Random and crowd families: largest random start speed (m/s); 0 plans from rest.
     #[arg(long, default_value_t = 0.0)]
     pub start_speed: f64,
-    /// Seed of the (first) random instance; instance i uses seed + i.
+    /// Seed of the (first) instance; instance i uses seed + i.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
-    /// Plan the antipodal swap on a circle (2D) or sphere (3D) instead.
-    #[arg(long, conflicts_with = "scenario_file")]
-    pub antipodal: bool,
-    /// Radius of the antipodal circle or sphere (m); default 90% of the
-    /// workspace half-width.
-    #[arg(long, requires = "antipodal")]
-    pub radius: Option<f64>,
     /// Read the instance from a scenario file (TOML, or JSON by extension).
     #[arg(long)]
     pub scenario_file: Option<PathBuf>,
 }
 
 impl InstanceArgs {
-    /// The default team these arguments describe (random and antipodal).
-    pub fn team(&self) -> Team {
-        Team::default_for(self.dim.into(), self.robots)
+    /// The scene of instance number `index`.
+    pub fn scene(&self, index: u64) -> Scene {
+        Scene {
+            obstacles: self.obstacles,
+            obstacle_speed: self.obstacle_speed,
+            start_speed: self.start_speed,
+            ..Scene::new(self.family.into(), self.dim.into(), self.robots, self.seed + index)
+        }
     }
 
-    /// The random-instance generator these arguments describe.
-    pub fn generator(&self) -> RandomScenario {
-        RandomScenario::new(self.team())
-            .with_obstacles(self.obstacles)
-            .with_obstacle_speed(self.obstacle_speed)
-            .with_start_speed(self.start_speed)
-    }
-
-    /// Instance number `index` (a file or the antipodal swap ignore it).
-    pub fn instance(&self, index: u64) -> Result<Problem> {
+    /// Instance number `index` (a file ignores it) and, for a generated
+    /// scene, what it was made of.
+    pub fn instance(&self, index: u64) -> Result<(Problem, Option<SceneParams>)> {
         if let Some(path) = &self.scenario_file {
-            return load_scenario(path);
+            return Ok((load_scenario(path)?, None));
         }
-        if self.antipodal {
-            let team = self.team();
-            let half = (0..team.dim.axes())
-                .map(|a| (team.workspace.max[a] - team.workspace.min[a]) / 2.0)
-                .fold(f64::INFINITY, f64::min);
-            let radius = self.radius.unwrap_or(0.9 * half);
-            return antipodal(&team, radius).context("building the antipodal swap");
-        }
-        let seed = self.seed + index;
-        self.generator().generate(seed).with_context(|| format!("generating random instance with seed {seed}"))
+        let scene = self.scene(index);
+        let (problem, params) = scene
+            .generate()
+            .with_context(|| format!("generating the {} scene with seed {}", scene.family.name(), scene.seed))?;
+        Ok((problem, Some(params)))
     }
 }
 

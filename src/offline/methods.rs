@@ -1,5 +1,6 @@
 //! The planning methods the CLI can run and time on one instance.
 
+use std::sync::atomic::{AtomicU8, Ordering};
 use std::time::Instant;
 
 use anyhow::{Context, Result};
@@ -20,6 +21,10 @@ use serde::Serialize;
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, ValueEnum, Serialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum Method {
+    /// The optimiser and the learned pipeline raced on the two cores: the
+    /// first verified plan wins and the other is cancelled (the optimiser
+    /// alone where the learned planner has no weights for the team).
+    Auto,
     /// The from-scratch AM optimiser (smoothness cost, cold start).
     Baseline,
     /// The safety filter projecting the baseline's solution perturbed by
@@ -38,6 +43,7 @@ impl Method {
     /// Its name on the command line and in reports.
     pub fn name(self) -> &'static str {
         match self {
+            Method::Auto => "auto",
             Method::Baseline => "baseline",
             Method::SafetyFilter => "safety-filter",
             Method::Flowopt => "flowopt",
@@ -115,9 +121,10 @@ impl LearnedArgs {
             },
             top_k: self.top_k,
             temperature: self.temperature,
-            use_init: method == Method::Flowopt,
+            use_init: method != Method::FlowNoInit,
+            // Racing the optimiser, the pipeline refines on one core.
+            threads: if method == Method::Auto { 1 } else { PipelineSettings::default().threads },
             reroute: !self.no_reroute,
-            ..PipelineSettings::default()
         }
     }
 }
@@ -134,6 +141,12 @@ pub struct Overrides {
     pub straight_start: bool,
     /// Restarts of the optimiser.
     pub restarts: Option<usize>,
+    /// No chord inflation between instants.
+    pub no_chord: bool,
+    /// No broad phase.
+    pub all_pairs: bool,
+    /// No veering of head-on robots.
+    pub no_veer: bool,
 }
 
 impl Overrides {
@@ -151,6 +164,9 @@ impl Overrides {
         if let Some(r) = self.restarts {
             s.restarts = r;
         }
+        s.chord &= !self.no_chord;
+        s.broad_phase &= !self.all_pairs;
+        s.veer &= !self.no_veer;
         s
     }
 }
@@ -240,6 +256,8 @@ impl Planner {
                 let mut s = base.residual_study(0.001);
                 s.max_iterations = STUDY_CAP;
                 s.restarts = 0;
+                s.chord &= !self.overrides.no_chord;
+                s.broad_phase &= !self.overrides.all_pairs;
                 (objective, s)
             }
         }
@@ -351,6 +369,9 @@ impl Planner {
     /// optimisers see everything).
     pub fn run_hiding(&mut self, method: Method, problem: &Problem, hidden: usize, seed: u64) -> Result<Record> {
         let obstacles = problem.obstacles.len();
+        if method == Method::Auto {
+            return self.race(problem, seed);
+        }
         if matches!(method, Method::Flowopt | Method::FlowNoInit) {
             let (out, time_ms) = self.plan_learned(method, problem, hidden, seed)?;
             let chosen = &out.refined[out.chosen];
@@ -379,6 +400,67 @@ impl Planner {
         let prepared = engine.prepare(problem, sample.as_deref()).context("preparing the residual study")?;
         let study = engine.run(&prepared, engine.cold_start(&prepared)).history;
         Ok(Record::of(problem, outcome, time_ms, study, None))
+    }
+
+    /// [`Method::Auto`]: the optimiser and the learned pipeline on two
+    /// threads; the first verified plan wins and cancels the other. Timed
+    /// to the winner's plan; the record is the winner's (or, if neither
+    /// verified, the optimiser's), studied as that method's run would be.
+    fn race(&mut self, problem: &Problem, seed: u64) -> Result<Record> {
+        let obstacles = problem.obstacles.len();
+        if self.learned_unavailable(&problem.team).is_some() {
+            return self.run_hiding(Method::Baseline, problem, 0, seed);
+        }
+        let optimiser_set = self.engine_set(&problem.team, obstacles, Use::Optimise)?;
+        let filter_set = self.engine_set(&problem.team, obstacles, Use::Filter)?;
+        let settings = self.learned_args.as_ref().context("learned arguments")?.settings(Method::Auto);
+        let (Some(optimiser), Some(sf), Some(learned)) = (
+            self.engines[optimiser_set].get(obstacles),
+            self.engines[filter_set].get(obstacles),
+            self.learned.as_ref(),
+        ) else {
+            anyhow::bail!("the racing planners are not loaded");
+        };
+        // 0: nobody yet; 1: the optimiser; 2: the learned pipeline.
+        let winner = AtomicU8::new(0);
+        let start = Instant::now();
+        let finish = |me: u8, verified: bool| {
+            let won = verified && winner.compare_exchange(0, me, Ordering::AcqRel, Ordering::Acquire).is_ok();
+            (won, start.elapsed().as_secs_f64() * 1e3)
+        };
+        let lost_optimiser = || winner.load(Ordering::Acquire) == 2;
+        let lost_learned = || winner.load(Ordering::Acquire) == 1;
+        let (optimised, piped) = std::thread::scope(|scope| {
+            let optimising = scope.spawn(|| {
+                let prepared = optimiser.prepare(problem, None)?;
+                let budget = Budget::unlimited().or_cancelled(&lost_optimiser);
+                let outcome = optimiser.solve_prepared_within(&prepared, &budget);
+                let (_, ms) = finish(1, outcome.stop == Stop::Verified);
+                anyhow::Ok((outcome, ms))
+            });
+            let sampling = scope.spawn(|| {
+                let budget = Budget::unlimited().or_cancelled(&lost_learned);
+                let out = learned.model().plan(problem, sf, &settings, seed, &budget);
+                let (_, ms) = finish(2, out.as_ref().is_ok_and(|o| o.verified));
+                (out, ms)
+            });
+            let optimised = optimising.join().map_err(|_| anyhow::anyhow!("the optimiser thread panicked"));
+            let piped = sampling.join().map_err(|_| anyhow::anyhow!("the learned thread panicked"));
+            (optimised, piped)
+        });
+        let (outcome, optimise_ms) = optimised??;
+        if winner.load(Ordering::Acquire) == 2 {
+            let (out, ms) = piped?;
+            let out = out.context("the learned pipeline")?;
+            let chosen = &out.refined[out.chosen];
+            let study =
+                self.engine(&problem.team, obstacles, Use::StudyFilter)?.run(&chosen.prepared, chosen.start.clone());
+            return Ok(Record::of(problem, chosen.outcome.clone(), ms, study.history, Some(out.times)));
+        }
+        let engine = self.engine(&problem.team, obstacles, Use::StudyOptimise)?;
+        let prepared = engine.prepare(problem, None).context("preparing the residual study")?;
+        let study = engine.run(&prepared, engine.cold_start(&prepared)).history;
+        Ok(Record::of(problem, outcome, optimise_ms, study, None))
     }
 }
 

@@ -12,7 +12,7 @@ pub struct SolveArgs {
     #[command(flatten)]
     instance: InstanceArgs,
     /// Planning method.
-    #[arg(long, value_enum, default_value = "baseline")]
+    #[arg(long, value_enum, default_value = "auto")]
     method: Method,
     #[command(flatten)]
     engine: EngineArgs,
@@ -40,6 +40,16 @@ pub struct EngineArgs {
     /// Optimiser: perturbed restarts when an attempt stalls (default 3).
     #[arg(long)]
     pub restarts: Option<usize>,
+    /// Ablation: constraints and verification at the fixed margin only,
+    /// without the chord inflation between instants.
+    #[arg(long)]
+    pub no_chord: bool,
+    /// Ablation: check every robot pair in every iteration (no broad phase).
+    #[arg(long)]
+    pub all_pairs: bool,
+    /// Ablation: optimiser cold starts without veering head-on robots.
+    #[arg(long)]
+    pub no_veer: bool,
 }
 
 impl EngineArgs {
@@ -50,17 +60,21 @@ impl EngineArgs {
             tolerance: self.tolerance,
             straight_start: self.straight_start,
             restarts: self.restarts,
+            no_chord: self.no_chord,
+            all_pairs: self.all_pairs,
+            no_veer: self.no_veer,
         }
     }
 }
 
 /// Runs `flowopt solve`.
 pub fn run(args: SolveArgs) -> Result<()> {
-    let problem = args.instance.instance(0)?;
+    let (problem, scene) = args.instance.instance(0)?;
     let mut planner = Planner::new(args.engine.overrides(), Some(args.learned.clone()));
     let record = planner.run(args.method, &problem, args.instance.seed)?;
     if args.json {
-        println!("{}", serde_json::to_string(&record)?);
+        let line = serde_json::json!({ "method": args.method, "scene": scene, "record": record });
+        println!("{line}");
     } else {
         let team = &problem.team;
         println!(

@@ -32,6 +32,7 @@
 //! ```
 
 mod engine;
+mod pairs;
 mod prepare;
 mod projection;
 mod run;

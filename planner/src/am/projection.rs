@@ -13,6 +13,7 @@
 //! shrunk by the tolerance, a plan is feasible exactly when no correction is
 //! needed.
 
+use super::pairs::{BROAD_PHASE_MIN_ROBOTS, BroadPhase};
 use crate::basis::bernstein_row;
 use crate::linalg::{Accum, gemm};
 use crate::problem::{Dim, Problem};
@@ -65,6 +66,10 @@ pub struct Limits {
     hi: [f64; 3],
     /// Obstacle centres at the grid instants, `[obstacle][axis][count]`.
     tracks: Vec<f64>,
+    /// Inflate each instant's separation by the chord to its neighbours.
+    chord: bool,
+    /// Find the robot pairs to check by sweep-and-prune (large teams).
+    broad_phase: bool,
 }
 
 impl Limits {
@@ -112,7 +117,16 @@ impl Limits {
             lo: [0, 1, 2].map(|ax| team.workspace.min[ax] + inset[ax]),
             hi: [0, 1, 2].map(|ax| team.workspace.max[ax] - inset[ax]),
             tracks,
+            chord: false,
+            broad_phase: false,
         }
+    }
+
+    /// The same limits checked with `chord` inflation (see [`Projection`])
+    /// and, for teams of [`BROAD_PHASE_MIN_ROBOTS`] or more, with the
+    /// `broad_phase`.
+    pub(crate) fn with_rules(self, chord: bool, broad_phase: bool) -> Self {
+        Self { chord, broad_phase, ..self }
     }
 }
 
@@ -125,13 +139,32 @@ pub(crate) struct Projection {
     pub corr: Vec<f64>,
     /// Robots with any non-zero correction.
     pub touched: Vec<bool>,
+    /// One pair's scaled squared distances and squared targets per instant.
+    scratch: Scratch,
+    broad: BroadPhase,
+}
+
+/// Per-instant values of the pair being checked.
+#[derive(Debug, Clone)]
+struct Scratch {
+    /// Scaled squared distance.
+    s: Vec<f64>,
+    /// Squared target: 1, or more with the chord inflation.
+    target: Vec<f64>,
 }
 
 impl Projection {
     /// Buffers for `robots` robots in `dim` on `grid`.
     pub fn new(dim: Dim, robots: usize, grid: &SampleGrid) -> Self {
         let len = dim.axes() * robots * grid.count();
-        Self { pos: vec![0.0; len], corr: vec![0.0; len], touched: vec![false; robots] }
+        let count = grid.count();
+        Self {
+            pos: vec![0.0; len],
+            corr: vec![0.0; len],
+            touched: vec![false; robots],
+            scratch: Scratch { s: vec![0.0; count], target: vec![1.0; count] },
+            broad: BroadPhase::default(),
+        }
     }
 
     /// Evaluates `xi` (`[axis][robot][coef]`) on `grid`, computes every
@@ -143,9 +176,12 @@ impl Projection {
         gemm(&mut self.pos, xi, &grid.pt, rows, n_xi, count, Accum::Replace);
         self.corr.fill(0.0);
         self.touched.fill(false);
+        if !limits.chord {
+            self.scratch.target.fill(1.0);
+        }
         let collisions = match dim {
-            Dim::Two => self.pairs::<2>(robots, count, limits.robot_sep) + self.obstacles::<2>(robots, count, limits),
-            Dim::Three => self.pairs::<3>(robots, count, limits.robot_sep) + self.obstacles::<3>(robots, count, limits),
+            Dim::Two => self.pairs::<2>(robots, count, limits) + self.obstacles::<2>(robots, count, limits),
+            Dim::Three => self.pairs::<3>(robots, count, limits) + self.obstacles::<3>(robots, count, limits),
         };
         let mut box_sq = 0.0;
         for ax in 0..dim.axes() {
@@ -165,33 +201,43 @@ impl Projection {
         collisions.sqrt() + box_sq.sqrt()
     }
 
-    /// Inter-robot corrections for every pair `i < j`: where `r < 1` the
-    /// offset is pushed to the surface, `c = d (1/r - 1)`, added to `i` and
-    /// taken from `j`. Returns the sum of `||c||^2`.
-    fn pairs<const D: usize>(&mut self, n: usize, count: usize, sep: [f64; 3]) -> f64 {
+    /// Inter-robot corrections for every pair `i < j` (every candidate of
+    /// the broad phase, in the same order): where the scaled distance `r` is
+    /// below its target `t` (1, or more with the chord inflation) the offset
+    /// is pushed to it, `c = d (t/r - 1)`, added to `i` and taken from `j`.
+    /// Returns the sum of `||c||^2`.
+    fn pairs<const D: usize>(&mut self, n: usize, count: usize, limits: &Limits) -> f64 {
+        let sep = limits.robot_sep;
         let inv = sep.map(|s| 1.0 / (s * s));
         let stride = n * count;
-        let pos = &self.pos;
+        let Projection { pos, corr, touched, scratch, broad } = self;
+        let candidates: Option<&[(u32, u32)]> = (limits.broad_phase && n >= BROAD_PHASE_MIN_ROBOTS).then(|| {
+            let reach = if limits.chord { largest_target(pos, D, n, count, &inv).sqrt() } else { 1.0 };
+            broad.candidates(pos, D, n, count, sep.map(|s| s * reach))
+        });
+        let all = || (0..n).flat_map(move |i| (i + 1..n).map(move |j| (i as u32, j as u32)));
+        let pairs: Box<dyn Iterator<Item = (u32, u32)>> = match candidates {
+            Some(c) => Box::new(c.iter().copied()),
+            None => Box::new(all()),
+        };
         let mut sum = 0.0;
-        for i in 0..n {
+        for (i, j) in pairs {
+            let (i, j) = (i as usize, j as usize);
             let pi: [&[f64]; D] = std::array::from_fn(|a| &pos[a * stride + i * count..a * stride + (i + 1) * count]);
-            for j in i + 1..n {
-                let pj: [&[f64]; D] =
-                    std::array::from_fn(|a| &pos[a * stride + j * count..a * stride + (j + 1) * count]);
-                if !any_inside::<D>(&pi, &pj, &inv, count) {
+            let pj: [&[f64]; D] = std::array::from_fn(|a| &pos[a * stride + j * count..a * stride + (j + 1) * count]);
+            if !scratch.violated::<D>(&pi, &pj, &inv, limits.chord) {
+                continue;
+            }
+            touched[i] = true;
+            touched[j] = true;
+            for k in 0..count {
+                let Some(c) = push::<D>(&pi, &pj, k, &inv, &sep, scratch.target[k], (i, j)) else {
                     continue;
-                }
-                self.touched[i] = true;
-                self.touched[j] = true;
-                for k in 0..count {
-                    let Some(c) = push::<D>(&pi, &pj, k, &inv, &sep, (i, j)) else {
-                        continue;
-                    };
-                    for a in 0..D {
-                        self.corr[a * stride + i * count + k] += c[a];
-                        self.corr[a * stride + j * count + k] -= c[a];
-                        sum += c[a] * c[a];
-                    }
+                };
+                for a in 0..D {
+                    corr[a * stride + i * count + k] += c[a];
+                    corr[a * stride + j * count + k] -= c[a];
+                    sum += c[a] * c[a];
                 }
             }
         }
@@ -202,7 +248,7 @@ impl Projection {
     /// obstacle `m` at an instant, its position is pushed to the surface.
     fn obstacles<const D: usize>(&mut self, n: usize, count: usize, limits: &Limits) -> f64 {
         let stride = n * count;
-        let pos = &self.pos;
+        let Projection { pos, corr, touched, scratch, .. } = self;
         let mut sum = 0.0;
         for (m, sep) in limits.obstacle_sep.iter().enumerate() {
             let inv = sep.map(|s| 1.0 / (s * s));
@@ -211,16 +257,16 @@ impl Projection {
             for i in 0..n {
                 let pi: [&[f64]; D] =
                     std::array::from_fn(|a| &pos[a * stride + i * count..a * stride + (i + 1) * count]);
-                if !any_inside::<D>(&pi, &track, &inv, count) {
+                if !scratch.violated::<D>(&pi, &track, &inv, limits.chord) {
                     continue;
                 }
-                self.touched[i] = true;
+                touched[i] = true;
                 for k in 0..count {
-                    let Some(c) = push::<D>(&pi, &track, k, &inv, sep, (i, m)) else {
+                    let Some(c) = push::<D>(&pi, &track, k, &inv, sep, scratch.target[k], (i, m)) else {
                         continue;
                     };
                     for a in 0..D {
-                        self.corr[a * stride + i * count + k] += c[a];
+                        corr[a * stride + i * count + k] += c[a];
                         sum += c[a] * c[a];
                     }
                 }
@@ -230,30 +276,82 @@ impl Projection {
     }
 }
 
-/// Whether `p` and `q` come closer than the separation at any instant
-/// (the cheap screen every pair goes through; vectorises over instants).
-fn any_inside<const D: usize>(p: &[&[f64]; D], q: &[&[f64]; D], inv: &[f64; 3], count: usize) -> bool {
-    let mut any = false;
-    for k in 0..count {
-        let mut s = 0.0;
-        for a in 0..D {
-            let d = p[a][k] - q[a][k];
-            s += d * d * inv[a];
+impl Scratch {
+    /// Whether `p` and `q` come closer than their target at any instant
+    /// (the screen every pair goes through; vectorises over instants).
+    /// Leaves the per-instant distances and targets for [`push`].
+    ///
+    /// With `chord`, an instant's target is `1 + L^2 / 4` (squared, scaled
+    /// units), `L` the longer of the offset's moves to its neighbouring
+    /// instants: two instants at least that far apart keep the straight
+    /// motion between them clear of the separation, however fast the pair
+    /// moves (the motion's curvature between instants is left to the
+    /// margin).
+    fn violated<const D: usize>(&mut self, p: &[&[f64]; D], q: &[&[f64]; D], inv: &[f64; 3], chord: bool) -> bool {
+        let count = self.s.len();
+        let mut any = false;
+        for k in 0..count {
+            let mut s = 0.0;
+            for a in 0..D {
+                let d = p[a][k] - q[a][k];
+                s += d * d * inv[a];
+            }
+            self.s[k] = s;
         }
-        any |= s < 1.0;
+        if chord {
+            let mut before = 0.0;
+            for k in 0..count {
+                let mut after = 0.0;
+                if k + 1 < count {
+                    for a in 0..D {
+                        let step = (p[a][k + 1] - q[a][k + 1]) - (p[a][k] - q[a][k]);
+                        after += step * step * inv[a];
+                    }
+                }
+                self.target[k] = 1.0 + 0.25 * f64::max(before, after);
+                before = after;
+            }
+        }
+        for k in 0..count {
+            any |= self.s[k] < self.target[k];
+        }
+        any
     }
-    any
 }
 
-/// The correction `e - d` for offset `d = p(k) - q(k)` if it violates the
-/// separation. Coincident centres get a deterministic direction derived
-/// from `ids` and `k`.
+/// The largest squared target any pair can have: `1 + L^2 / 4` for `L` the
+/// sum of the two largest robot moves between instants (scaled).
+fn largest_target(pos: &[f64], axes: usize, n: usize, count: usize, inv: &[f64; 3]) -> f64 {
+    let mut steps: Vec<f64> = (0..n)
+        .map(|i| {
+            (0..count.saturating_sub(1))
+                .map(|k| {
+                    (0..axes)
+                        .map(|a| {
+                            let x = &pos[(a * n + i) * count..];
+                            (x[k + 1] - x[k]).powi(2) * inv[a]
+                        })
+                        .sum::<f64>()
+                })
+                .fold(0.0, f64::max)
+                .sqrt()
+        })
+        .collect();
+    steps.sort_unstable_by(|a, b| b.total_cmp(a));
+    let l = steps.iter().take(2).sum::<f64>();
+    1.0 + 0.25 * l * l
+}
+
+/// The correction `e - d` for offset `d = p(k) - q(k)` if its scaled
+/// squared length is below `target` (squared). Coincident centres get a
+/// deterministic direction derived from `ids` and `k`.
 fn push<const D: usize>(
     p: &[&[f64]; D],
     q: &[&[f64]; D],
     k: usize,
     inv: &[f64; 3],
     sep: &[f64; 3],
+    target: f64,
     ids: (usize, usize),
 ) -> Option<[f64; D]> {
     let mut d = [0.0; D];
@@ -262,19 +360,20 @@ fn push<const D: usize>(
         d[a] = p[a][k] - q[a][k];
         s += d[a] * d[a] * inv[a];
     }
-    if s >= 1.0 {
+    if s >= target {
         return None;
     }
+    let reach = target.sqrt();
     let mut c = [0.0; D];
     if s < COINCIDENT {
         // Golden-angle spread so that coincident pairs part in different directions.
         let angle = ((ids.0 * 31 + ids.1 * 17 + k * 7) as f64) * 2.399_963_229_728_653;
         let u = [angle.cos(), angle.sin(), 0.0];
         for a in 0..D {
-            c[a] = u[a] * sep[a] - d[a];
+            c[a] = u[a] * sep[a] * reach - d[a];
         }
     } else {
-        let scale = 1.0 / s.sqrt() - 1.0;
+        let scale = reach / s.sqrt() - 1.0;
         for a in 0..D {
             c[a] = d[a] * scale;
         }
@@ -387,5 +486,60 @@ mod tests {
         let primal = p.run(Dim::Two, 2, &grid, &limits, &xi);
         assert!((corr(&p, 1, 0) - 0.15).abs() < 1e-12, "pushed from y = 0.05 to y = 0.2");
         assert!((primal - 0.15).abs() < 1e-12);
+    }
+
+    #[test]
+    fn the_chord_inflation_pushes_fast_pairs_further_apart() {
+        // Two robots 0.21 m apart (beyond the 0.2 m separation) at the
+        // middle instant of three, passing each other at 1 m/s relative
+        // over instants 0.1 s apart: the straight motion between instants
+        // dips to 0.2 * ... below the separation, so the chord target asks
+        // for more.
+        let team = Team::default_for(Dim::Two, 2);
+        let problem = setup([0.0, 0.0], [0.21, 0.0], vec![]).0;
+        let grid = SampleGrid::new(team.degree, vec![0.45, 0.5, 0.55]);
+        let nx = team.degree + 1;
+        // Robot 0 still at the origin; robot 1 moving along y at 1 m/s
+        // (T = 5 s, so 0.25 m between these instants), at x = 0.21.
+        let mut xi = vec![0.0; 2 * 2 * nx];
+        for c in 0..nx {
+            let tau = c as f64 / (nx - 1) as f64;
+            xi[nx + c] = 0.21;
+            xi[3 * nx + c] = 5.0 * (tau - 0.5);
+        }
+        let plain = Limits::new(&problem, &grid, 1.0, [0.0; 3]);
+        let mut p = Projection::new(Dim::Two, 2, &grid);
+        assert_eq!(p.run(Dim::Two, 2, &grid, &plain, &xi), 0.0, "clear at every instant");
+        let chord = plain.clone().with_rules(true, false);
+        let primal = p.run(Dim::Two, 2, &grid, &chord, &xi);
+        assert!(primal > 0.0, "the chords between the instants dip through the separation");
+        // The middle instant is pushed to sqrt(1 + L^2/4) separations, L =
+        // 0.25 / 0.2 the scaled move: 0.2 * sqrt(1 + 1.25^2 / 4) = 0.2358 m.
+        let target = 0.2 * (1.0f64 + 1.25 * 1.25 / 4.0).sqrt();
+        assert!((corr(&p, 1, 1) - corr(&p, 0, 1) - (target - 0.21)).abs() < 1e-9);
+    }
+
+    #[test]
+    fn the_broad_phase_iteration_equals_the_all_pairs_one() {
+        use crate::am::{AmSettings, Engine, Objective};
+        use crate::scenario::RandomScenario;
+        let team = Team { workspace: crate::problem::Workspace::centred(1.6), ..Team::default_for(Dim::Two, 40) };
+        for seed in 0..3 {
+            let problem = RandomScenario::new(team.clone()).with_obstacles(2).generate(seed).unwrap();
+            let run = |broad_phase| {
+                let mut settings = AmSettings { broad_phase, ..AmSettings::optimiser().residual_study(-1.0) };
+                settings.max_iterations = 60;
+                let engine = Engine::new(&team, 2, Objective::smoothness(), settings).unwrap();
+                let prepared = engine.prepare(&problem, None).unwrap();
+                engine.run(&prepared, engine.cold_start(&prepared))
+            };
+            let (broad, all) = (run(true), run(false));
+            assert!(all.history.iter().any(|r| r.primal > 0.0), "the pairs are exercised");
+            assert_eq!(broad.state, all.state, "seed {seed}");
+            let bits = |h: &[crate::am::Residuals]| -> Vec<(u64, u64)> {
+                h.iter().map(|r| (r.primal.to_bits(), r.fixed_point.to_bits())).collect()
+            };
+            assert_eq!(bits(&broad.history), bits(&all.history), "seed {seed}");
+        }
     }
 }

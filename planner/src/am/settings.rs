@@ -94,6 +94,23 @@ pub struct AmSettings {
     /// `verify_margin` it could not be verified at the very next instants.
     #[serde(default)]
     pub verify_skip: usize,
+    /// Inflate each instant's separation (constraints and verification) by
+    /// the chord to its neighbouring instants, so that the straight motion
+    /// between instants clears it too, however long or fast the paths
+    /// (`false`: the fixed `margin` alone, which fast pairs of big
+    /// workspaces dip through between samples).
+    #[serde(default)]
+    pub chord: bool,
+    /// Check only the robot pairs a sweep-and-prune over per-segment
+    /// bounding boxes finds (teams of 24 or more; the same iteration as all
+    /// pairs, in near-linear time).
+    #[serde(default)]
+    pub broad_phase: bool,
+    /// Optimiser only: robots whose straight segments meet head-on start
+    /// veering to the same side (`Engine`'s cold start; breaks the deadlock
+    /// of symmetric scenes such as antipodal swaps).
+    #[serde(default)]
+    pub veer: bool,
 }
 
 impl AmSettings {
@@ -111,6 +128,9 @@ impl AmSettings {
             record_history: false,
             verify_margin: 0.0,
             verify_skip: 0,
+            chord: true,
+            broad_phase: true,
+            veer: true,
         }
     }
 
@@ -133,6 +153,9 @@ impl AmSettings {
             record_history: false,
             verify_margin: 0.0,
             verify_skip: 0,
+            chord: true,
+            broad_phase: true,
+            veer: false,
         }
     }
 

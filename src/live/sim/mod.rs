@@ -31,6 +31,7 @@ use flowopt_planner::problem::{Problem, StartState, Team};
 use flowopt_planner::scenario::RandomScenario;
 use hdrhistogram::Histogram;
 use serde::{Deserialize, Serialize};
+use tracing::warn;
 
 use crate::live::daemon_args::DaemonArgs;
 use crate::live::faults::{Fault, SCHEDULE, Scheduled};
@@ -241,10 +242,11 @@ impl Counters {
     }
 }
 
-/// Whether the trajectory `f` taken up at `now_ns` is collision-free on a
-/// dense grid (within the success tolerance) and starts where the robots
-/// are: the simulator's own check of what it follows.
-fn independently_verified(team: &Team, f: &flowopt_client::Followed, robots: &Robots, now_ns: u64) -> bool {
+/// The simulator's own check of a trajectory `f` taken up when the robots
+/// were last moved to `now_ns`: collision-free and inside the box on a
+/// dense grid (within the success tolerance), and starting where the robots
+/// are; what failed, if anything.
+fn independent_check(team: &Team, f: &flowopt_client::Followed, robots: &Robots, now_ns: u64) -> Result<(), String> {
     let start = f.at(f.origin_ns);
     let end = f.plan.at(f.plan.horizon);
     let problem = Problem {
@@ -257,10 +259,19 @@ fn independently_verified(team: &Team, f: &flowopt_client::Followed, robots: &Ro
         obstacles: Vec::new(),
     };
     let m = Metrics::measure(&problem, &f.plan);
-    let clear = m.min_robot_scaled >= 1.0 - flowopt_planner::problem::FEASIBILITY_TOLERANCE
-        && m.workspace_excess <= flowopt_planner::problem::FEASIBILITY_TOLERANCE * team.separation().0;
-    let here = f.at(now_ns).iter().zip(&robots.position).all(|(k, p)| (k.position - p).norm() <= START_TOLERANCE);
-    clear && here
+    let tolerance = flowopt_planner::problem::FEASIBILITY_TOLERANCE;
+    if m.min_robot_scaled < 1.0 - tolerance {
+        return Err(format!("robots come within {:.4} of the separation", m.min_robot_scaled));
+    }
+    if m.workspace_excess > tolerance * team.separation().0 {
+        return Err(format!("a robot leaves the box by {:.4} m", m.workspace_excess));
+    }
+    let off = f.at(now_ns).iter().zip(&robots.position).map(|(k, p)| (k.position - p).norm()).fold(0.0, f64::max);
+    if off > START_TOLERANCE {
+        let age = (now_ns as f64 - f.origin_ns as f64) * 1e-6;
+        return Err(format!("it is {off:.4} m from the robots {age:.1} ms after its origin"));
+    }
+    Ok(())
 }
 
 fn simulate(args: &SimArgs) -> Result<SimReport> {
@@ -343,7 +354,8 @@ fn simulate(args: &SimArgs) -> Result<SimReport> {
         let key = followed.as_ref().map(|f| (f.plan_sequence, f.origin_ns, f.status));
         if key.is_some() && key != followed_key {
             let f = followed.as_ref().context("a followed plan")?;
-            if !independently_verified(&team, f, &robots, now_ns) {
+            if let Err(why) = independent_check(&team, f, &robots, simulated_ns) {
+                warn!(status = ?f.status, plan_sequence = f.plan_sequence, "followed a plan that fails the check: {why}");
                 counters.each(t, |tally| tally.followed_unverified += 1);
             }
         }
