@@ -151,7 +151,7 @@ pub struct TeamConfig {
 }
 
 /// The learned planner of a team (`[team.learned]`). Paths are relative to
-/// the working directory.
+/// the configuration file's directory ([`DaemonConfig::load`] resolves them).
 #[derive(Debug, Clone, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct LearnedConfig {
@@ -266,9 +266,14 @@ impl DaemonConfig {
     pub fn load(path: &Path) -> Result<Self, ConfigError> {
         let shown = path.display().to_string();
         let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Io { path: shown.clone(), source })?;
-        let config: Self =
+        let mut config: Self =
             toml::from_str(&text).map_err(|e| ConfigError::Parse { path: shown, message: e.to_string() })?;
         config.check()?;
+        let dir = path.parent().unwrap_or(Path::new(""));
+        for learned in config.teams.iter_mut().filter_map(|t| t.learned.as_mut()) {
+            learned.flow = dir.join(&learned.flow);
+            learned.init = learned.init.as_ref().map(|p| dir.join(p));
+        }
         Ok(config)
     }
 
@@ -308,6 +313,20 @@ mod tests {
         assert_eq!(config.ipc.prefix, "flowopt");
         let team = config.teams[0].team().unwrap();
         assert_eq!((team.robots, team.dim), (16, Dim::Two));
+        // The learned planner's weights, relative to the file, are found
+        // whatever the working directory.
+        let learned = config.teams[0].learned.as_ref().expect("the default races the learned planner");
+        assert!(learned.flow.is_file(), "{}", learned.flow.display());
+        assert!(learned.init.as_ref().is_some_and(|p| p.is_file()));
+    }
+
+    #[test]
+    fn the_shipped_big_team_config_loads() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/team64.toml");
+        let config = DaemonConfig::load(&path).unwrap();
+        let team = config.teams[0].team().unwrap();
+        assert_eq!((team.robots, team.dim), (64, Dim::Two));
+        assert!(config.teams[0].learned.is_none());
     }
 
     #[test]

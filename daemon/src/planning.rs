@@ -677,15 +677,12 @@ mod tests {
     }
 
     #[test]
-    fn the_learned_config_preloads_the_shipped_weights_and_plans_cold() {
+    fn the_default_config_preloads_the_shipped_weights_and_plans_cold() {
         let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
-        let config = crate::config::DaemonConfig::load(&root.join("config/learned.toml")).unwrap();
+        let config = crate::config::DaemonConfig::load(&root.join("config/default.toml")).unwrap();
         let mut team = config.teams[0].clone();
         team.name = "t".into();
         team.deadline_ms = 10_000.0;
-        let learned = team.learned.as_mut().unwrap();
-        learned.flow = root.join(&learned.flow);
-        learned.init = learned.init.as_ref().map(|p| root.join(p));
         let mut planner = TeamPlanner::preload(&team).unwrap();
         assert_eq!(planner.cold.methods(), 2, "the learned pipeline races the optimiser");
         let problem = RandomScenario::new(planner.team().clone()).generate(11).unwrap();

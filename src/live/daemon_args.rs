@@ -7,7 +7,8 @@ use clap::Args;
 use flowopt_daemon::config::{DaemonConfig, TeamConfig};
 
 /// The shipped default configuration, used when `config/default.toml` is
-/// not found (running from outside the repository).
+/// not found (running from outside the repository; without the learned
+/// planner, whose weights are in the repository).
 const DEFAULT_CONFIG: &str = include_str!("../../config/default.toml");
 /// Where the default configuration lives in the repository.
 const DEFAULT_CONFIG_PATH: &str = "config/default.toml";
@@ -28,8 +29,18 @@ impl DaemonArgs {
     /// The configuration with the overrides applied.
     pub fn load(&self) -> Result<DaemonConfig> {
         let mut config = if self.config.as_os_str() == DEFAULT_CONFIG_PATH && !self.config.exists() {
-            let config: DaemonConfig = toml::from_str(DEFAULT_CONFIG).context("the built-in default configuration")?;
+            let mut config: DaemonConfig =
+                toml::from_str(DEFAULT_CONFIG).context("the built-in default configuration")?;
             config.check()?;
+            // The weights live in the repository: away from it the
+            // optimiser plans alone.
+            for team in &mut config.teams {
+                if team.learned.take().is_some() {
+                    eprintln!(
+                        "{DEFAULT_CONFIG_PATH} not found: the built-in configuration plans with the optimiser alone"
+                    );
+                }
+            }
             config
         } else {
             DaemonConfig::load(&self.config)?

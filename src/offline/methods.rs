@@ -9,7 +9,9 @@ use std::path::PathBuf;
 
 use flowopt_models::flow::Solver;
 use flowopt_models::pipeline::{LearnedPlanner, PipelineOutcome, PipelineSettings, PipelineTimes, Query};
-use flowopt_planner::am::{AmOutcome, AmSettings, Budget, Engine, EngineSet, Objective, Residuals, Stop};
+use flowopt_planner::am::{
+    AmOutcome, AmSettings, AmState, Budget, Engine, EngineSet, Objective, Prepared, Residuals, Stop,
+};
 use flowopt_planner::metrics::Metrics;
 use flowopt_planner::plan::JointPlan;
 use flowopt_planner::problem::{Problem, Team};
@@ -147,6 +149,8 @@ pub struct Overrides {
     pub all_pairs: bool,
     /// No veering of head-on robots.
     pub no_veer: bool,
+    /// No untimed residual study.
+    pub no_study: bool,
 }
 
 impl Overrides {
@@ -283,6 +287,30 @@ impl Planner {
         self.engines[index].get(obstacles).context("the engine was built")
     }
 
+    /// The untimed residual study with the engine for `usage`: from
+    /// `from` (a learned candidate's prepared problem and start) when
+    /// given, else from the cold start of `problem` prepared with `sample`.
+    /// Empty with `--no-study`.
+    fn study(
+        &mut self,
+        problem: &Problem,
+        usage: Use,
+        sample: Option<&[f64]>,
+        from: Option<(&Prepared, &AmState)>,
+    ) -> Result<Vec<Residuals>> {
+        if self.overrides.no_study {
+            return Ok(Vec::new());
+        }
+        let engine = self.engine(&problem.team, problem.obstacles.len(), usage)?;
+        Ok(match from {
+            Some((prepared, start)) => engine.run(prepared, start.clone()).history,
+            None => {
+                let prepared = engine.prepare(problem, sample).context("preparing the residual study")?;
+                engine.run(&prepared, engine.cold_start(&prepared)).history
+            }
+        })
+    }
+
     /// Loads the learned planner's weights on first use.
     fn load_learned(&mut self) -> Result<()> {
         let args = self.learned_args.as_ref().context("no learned-planner weights were given")?;
@@ -375,9 +403,8 @@ impl Planner {
         if matches!(method, Method::Flowopt | Method::FlowNoInit) {
             let (out, time_ms) = self.plan_learned(method, problem, hidden, seed)?;
             let chosen = &out.refined[out.chosen];
-            let study =
-                self.engine(&problem.team, obstacles, Use::StudyFilter)?.run(&chosen.prepared, chosen.start.clone());
-            return Ok(Record::of(problem, chosen.outcome.clone(), time_ms, study.history, Some(out.times)));
+            let study = self.study(problem, Use::StudyFilter, None, Some((&chosen.prepared, &chosen.start)))?;
+            return Ok(Record::of(problem, chosen.outcome.clone(), time_ms, study, Some(out.times)));
         }
         let optimiser = self.engine(&problem.team, obstacles, Use::Optimise)?;
         let start = Instant::now();
@@ -396,9 +423,7 @@ impl Planner {
             (solved, optimise_ms, None)
         };
         let usage = if sample.is_some() { Use::StudyFilter } else { Use::StudyOptimise };
-        let engine = self.engine(&problem.team, obstacles, usage)?;
-        let prepared = engine.prepare(problem, sample.as_deref()).context("preparing the residual study")?;
-        let study = engine.run(&prepared, engine.cold_start(&prepared)).history;
+        let study = self.study(problem, usage, sample.as_deref(), None)?;
         Ok(Record::of(problem, outcome, time_ms, study, None))
     }
 
@@ -453,13 +478,10 @@ impl Planner {
             let (out, ms) = piped?;
             let out = out.context("the learned pipeline")?;
             let chosen = &out.refined[out.chosen];
-            let study =
-                self.engine(&problem.team, obstacles, Use::StudyFilter)?.run(&chosen.prepared, chosen.start.clone());
-            return Ok(Record::of(problem, chosen.outcome.clone(), ms, study.history, Some(out.times)));
+            let study = self.study(problem, Use::StudyFilter, None, Some((&chosen.prepared, &chosen.start)))?;
+            return Ok(Record::of(problem, chosen.outcome.clone(), ms, study, Some(out.times)));
         }
-        let engine = self.engine(&problem.team, obstacles, Use::StudyOptimise)?;
-        let prepared = engine.prepare(problem, None).context("preparing the residual study")?;
-        let study = engine.run(&prepared, engine.cold_start(&prepared)).history;
+        let study = self.study(problem, Use::StudyOptimise, None, None)?;
         Ok(Record::of(problem, outcome, optimise_ms, study, None))
     }
 }

@@ -50,6 +50,11 @@ pub struct EngineArgs {
     /// Ablation: optimiser cold starts without veering head-on robots.
     #[arg(long)]
     pub no_veer: bool,
+    /// Skip the untimed residual study (the iterations to 0.01 / 0.001 m
+    /// are then not reported): it runs up to 10,000 iterations, which is
+    /// most of the time a big team's benchmark takes.
+    #[arg(long)]
+    pub no_study: bool,
 }
 
 impl EngineArgs {
@@ -63,6 +68,7 @@ impl EngineArgs {
             no_chord: self.no_chord,
             all_pairs: self.all_pairs,
             no_veer: self.no_veer,
+            no_study: self.no_study,
         }
     }
 }

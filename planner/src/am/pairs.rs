@@ -4,7 +4,8 @@
 //!
 //! Two robots whose scaled distance is below `R` at some instant are within
 //! `R` separations of each other along every axis at that instant, so their
-//! boxes for the segment holding it, grown by `R` separations, overlap: no
+//! boxes for the segment holding it, each grown by its robot's share of `R`
+//! separations, overlap: no
 //! violating pair is ever left out, and the pairs are returned in the order
 //! the all-pairs loop visits them, so the iteration is the same number for
 //! number (`tests::the_broad_phase_iteration_equals_the_all_pairs_one`).
@@ -21,19 +22,23 @@ const SEGMENT: usize = 7;
 /// The broad phase's working memory.
 #[derive(Debug, Clone, Default)]
 pub(crate) struct BroadPhase {
-    /// Per segment and robot: `[min, max]` per axis.
+    /// Per segment and robot: `[min, max]` per axis, grown by the robot's
+    /// share of the reach.
     boxes: Vec<[[f64; 2]; 3]>,
     /// Robot order of one segment's sweep.
     order: Vec<usize>,
+    /// Which pairs `(i, j)`, `i < j`, are candidates: bit `i * n + j`.
+    found: Vec<u64>,
     /// Candidate pairs `(i, j)`, `i < j`, sorted.
     pairs: Vec<(u32, u32)>,
 }
 
 impl BroadPhase {
     /// The pairs of `n` robots whose positions `pos` (`[axis][robot][count]`,
-    /// `axes` axes) may come within `reach` (per axis, m) of each other at
-    /// some instant, sorted.
-    pub fn candidates(&mut self, pos: &[f64], axes: usize, n: usize, count: usize, reach: [f64; 3]) -> &[(u32, u32)] {
+    /// `axes` axes) may come closer than `grow[i] + grow[j]` along every
+    /// axis at some instant, sorted. `grow` (`[robot][axis]`, m) is each
+    /// robot's share of the pair's reach.
+    pub fn candidates(&mut self, pos: &[f64], axes: usize, n: usize, count: usize, grow: &[[f64; 3]]) -> &[(u32, u32)] {
         let segments = count.div_ceil(SEGMENT).max(1);
         self.boxes.clear();
         self.boxes.resize(segments * n, [[f64::INFINITY, f64::NEG_INFINITY]; 3]);
@@ -46,10 +51,13 @@ impl BroadPhase {
                         b[0] = b[0].min(x);
                         b[1] = b[1].max(x);
                     }
+                    b[0] -= grow[i][a];
+                    b[1] += grow[i][a];
                 }
             }
         }
-        self.pairs.clear();
+        self.found.clear();
+        self.found.resize((n * n).div_ceil(64), 0);
         for s in 0..segments {
             let boxes = &self.boxes[s * n..(s + 1) * n];
             self.order.clear();
@@ -59,18 +67,25 @@ impl BroadPhase {
                 let bi = &boxes[i];
                 for &j in &self.order[k + 1..] {
                     let bj = &boxes[j];
-                    if bj[0][0] > bi[0][1] + reach[0] {
+                    if bj[0][0] > bi[0][1] {
                         break;
                     }
-                    let overlap = (1..axes).all(|a| bj[a][0] <= bi[a][1] + reach[a] && bi[a][0] <= bj[a][1] + reach[a]);
-                    if overlap {
-                        self.pairs.push((i.min(j) as u32, i.max(j) as u32));
+                    if (1..axes).all(|a| bj[a][0] <= bi[a][1] && bi[a][0] <= bj[a][1]) {
+                        let bit = i.min(j) * n + i.max(j);
+                        self.found[bit / 64] |= 1 << (bit % 64);
                     }
                 }
             }
         }
-        self.pairs.sort_unstable();
-        self.pairs.dedup();
+        self.pairs.clear();
+        for (w, &word) in self.found.iter().enumerate() {
+            let mut bits = word;
+            while bits != 0 {
+                let bit = w * 64 + bits.trailing_zeros() as usize;
+                self.pairs.push(((bit / n) as u32, (bit % n) as u32));
+                bits &= bits - 1;
+            }
+        }
         &self.pairs
     }
 }
@@ -88,10 +103,12 @@ mod tests {
             pos[i * count..(i + 1) * count].fill(i as f64);
         }
         let mut broad = BroadPhase::default();
-        assert!(broad.candidates(&pos, 2, n, count, [0.3; 3]).is_empty());
+        assert!(broad.candidates(&pos, 2, n, count, &[[0.15; 3]; 3]).is_empty());
         // Robot 2 passes robot 1 at the last instant only.
         pos[2 * count + count - 1] = 1.1;
-        assert_eq!(broad.candidates(&pos, 2, n, count, [0.3; 3]), &[(1, 2)]);
-        assert_eq!(broad.candidates(&pos, 2, n, count, [1.0; 3]), &[(0, 1), (1, 2)]);
+        assert_eq!(broad.candidates(&pos, 2, n, count, &[[0.15; 3]; 3]), &[(1, 2)]);
+        assert_eq!(broad.candidates(&pos, 2, n, count, &[[0.5; 3]; 3]), &[(0, 1), (1, 2)]);
+        // A robot's own share reaches further: robot 0 grown by 0.95 meets 1.
+        assert_eq!(broad.candidates(&pos, 2, n, count, &[[0.95; 3], [0.15; 3], [0.15; 3]]), &[(0, 1), (1, 2)]);
     }
 }

@@ -142,15 +142,19 @@ pub(crate) struct Projection {
     /// One pair's scaled squared distances and squared targets per instant.
     scratch: Scratch,
     broad: BroadPhase,
+    /// Each robot's largest scaled move between instants (chord inflation).
+    steps: Vec<f64>,
+    /// Each robot's share of the broad phase's reach, per axis (m).
+    grow: Vec<[f64; 3]>,
 }
 
 /// Per-instant values of the pair being checked.
 #[derive(Debug, Clone)]
 struct Scratch {
-    /// Scaled squared distance.
-    s: Vec<f64>,
     /// Squared target: 1, or more with the chord inflation.
     target: Vec<f64>,
+    /// Squared scaled move of the offset to the next instant (0 at the last).
+    step: Vec<f64>,
 }
 
 impl Projection {
@@ -162,8 +166,10 @@ impl Projection {
             pos: vec![0.0; len],
             corr: vec![0.0; len],
             touched: vec![false; robots],
-            scratch: Scratch { s: vec![0.0; count], target: vec![1.0; count] },
+            scratch: Scratch { target: vec![1.0; count], step: vec![0.0; count] },
             broad: BroadPhase::default(),
+            steps: Vec::with_capacity(robots),
+            grow: Vec::with_capacity(robots),
         }
     }
 
@@ -210,10 +216,20 @@ impl Projection {
         let sep = limits.robot_sep;
         let inv = sep.map(|s| 1.0 / (s * s));
         let stride = n * count;
-        let Projection { pos, corr, touched, scratch, broad } = self;
+        let Projection { pos, corr, touched, scratch, broad, steps, grow } = self;
+        // A pair's chord inflation is at most sqrt(1 + (s_i + s_j)^2 / 4) <=
+        // 1 + (s_i + s_j) / 2 separations, s the robots' largest scaled moves
+        // between instants: robot i's share of the reach is (1 + s_i) / 2.
+        if limits.chord {
+            robot_steps(pos, D, n, count, &inv, steps);
+        } else {
+            steps.clear();
+            steps.resize(n, 0.0);
+        }
         let candidates: Option<&[(u32, u32)]> = (limits.broad_phase && n >= BROAD_PHASE_MIN_ROBOTS).then(|| {
-            let reach = if limits.chord { largest_target(pos, D, n, count, &inv).sqrt() } else { 1.0 };
-            broad.candidates(pos, D, n, count, sep.map(|s| s * reach))
+            grow.clear();
+            grow.extend(steps.iter().map(|s| sep.map(|x| x * 0.5 * (1.0 + s))));
+            broad.candidates(pos, D, n, count, grow)
         });
         let all = || (0..n).flat_map(move |i| (i + 1..n).map(move |j| (i as u32, j as u32)));
         let pairs: Box<dyn Iterator<Item = (u32, u32)>> = match candidates {
@@ -225,7 +241,8 @@ impl Projection {
             let (i, j) = (i as usize, j as usize);
             let pi: [&[f64]; D] = std::array::from_fn(|a| &pos[a * stride + i * count..a * stride + (i + 1) * count]);
             let pj: [&[f64]; D] = std::array::from_fn(|a| &pos[a * stride + j * count..a * stride + (j + 1) * count]);
-            if !scratch.violated::<D>(&pi, &pj, &inv, limits.chord) {
+            let bound = limits.chord.then(|| 1.0 + 0.25 * (steps[i] + steps[j]).powi(2));
+            if !scratch.violated::<D>(&pi, &pj, &inv, bound) {
                 continue;
             }
             touched[i] = true;
@@ -249,15 +266,17 @@ impl Projection {
     fn obstacles<const D: usize>(&mut self, n: usize, count: usize, limits: &Limits) -> f64 {
         let stride = n * count;
         let Projection { pos, corr, touched, scratch, .. } = self;
+        let robot_steps = if limits.chord { largest_steps(pos, D, n, count) } else { [0.0; 3] };
         let mut sum = 0.0;
         for (m, sep) in limits.obstacle_sep.iter().enumerate() {
             let inv = sep.map(|s| 1.0 / (s * s));
-            let track: [&[f64]; D] =
-                std::array::from_fn(|a| &limits.tracks[(m * D + a) * count..(m * D + a + 1) * count]);
+            let rows = &limits.tracks[m * D * count..(m + 1) * D * count];
+            let track: [&[f64]; D] = std::array::from_fn(|a| &rows[a * count..(a + 1) * count]);
+            let bound = limits.chord.then(|| largest_target(&robot_steps, &largest_steps(rows, D, 1, count), &inv));
             for i in 0..n {
                 let pi: [&[f64]; D] =
                     std::array::from_fn(|a| &pos[a * stride + i * count..a * stride + (i + 1) * count]);
-                if !scratch.violated::<D>(&pi, &track, &inv, limits.chord) {
+                if !scratch.violated::<D>(&pi, &track, &inv, bound) {
                     continue;
                 }
                 touched[i] = true;
@@ -279,67 +298,110 @@ impl Projection {
 impl Scratch {
     /// Whether `p` and `q` come closer than their target at any instant
     /// (the screen every pair goes through; vectorises over instants).
-    /// Leaves the per-instant distances and targets for [`push`].
+    /// Leaves the per-instant targets for [`push`].
     ///
-    /// With `chord`, an instant's target is `1 + L^2 / 4` (squared, scaled
-    /// units), `L` the longer of the offset's moves to its neighbouring
+    /// With the chord inflation (`bound`, the largest target any pair can
+    /// have this iteration), an instant's target is `1 + L^2 / 4` (squared,
+    /// scaled units), `L` the longer of the offset's moves to its neighbouring
     /// instants: two instants at least that far apart keep the straight
     /// motion between them clear of the separation, however fast the pair
     /// moves (the motion's curvature between instants is left to the
-    /// margin).
-    fn violated<const D: usize>(&mut self, p: &[&[f64]; D], q: &[&[f64]; D], inv: &[f64; 3], chord: bool) -> bool {
-        let count = self.s.len();
-        let mut any = false;
-        for k in 0..count {
+    /// margin). Pairs that stay beyond `bound` are screened out before the
+    /// targets are computed.
+    fn violated<const D: usize>(
+        &mut self,
+        p: &[&[f64]; D],
+        q: &[&[f64]; D],
+        inv: &[f64; 3],
+        bound: Option<f64>,
+    ) -> bool {
+        let count = self.target.len();
+        let p: [&[f64]; D] = std::array::from_fn(|a| &p[a][..count]);
+        let q: [&[f64]; D] = std::array::from_fn(|a| &q[a][..count]);
+        let scaled = |k: usize| -> f64 {
             let mut s = 0.0;
             for a in 0..D {
                 let d = p[a][k] - q[a][k];
                 s += d * d * inv[a];
             }
-            self.s[k] = s;
-        }
-        if chord {
-            let mut before = 0.0;
+            s
+        };
+        let below = |t: f64| -> bool {
+            let mut any = false;
             for k in 0..count {
-                let mut after = 0.0;
-                if k + 1 < count {
-                    for a in 0..D {
-                        let step = (p[a][k + 1] - q[a][k + 1]) - (p[a][k] - q[a][k]);
-                        after += step * step * inv[a];
-                    }
-                }
-                self.target[k] = 1.0 + 0.25 * f64::max(before, after);
-                before = after;
+                any |= scaled(k) < t;
             }
+            any
+        };
+        let Some(bound) = bound else {
+            return below(1.0);
+        };
+        if !below(bound) {
+            return false;
         }
-        for k in 0..count {
-            any |= self.s[k] < self.target[k];
+        // Three passes that vectorise: the squared moves between instants,
+        // the targets, the comparison.
+        let step = &mut self.step[..count];
+        step[count - 1] = 0.0;
+        for k in 0..count - 1 {
+            let mut l = 0.0;
+            for a in 0..D {
+                let m = (p[a][k + 1] - q[a][k + 1]) - (p[a][k] - q[a][k]);
+                l += m * m * inv[a];
+            }
+            step[k] = l;
+        }
+        let target = &mut self.target[..count];
+        target[0] = 1.0 + 0.25 * step[0];
+        for k in 1..count {
+            target[k] = 1.0 + 0.25 * f64::max(step[k - 1], step[k]);
+        }
+        let mut any = false;
+        for (k, t) in target.iter().enumerate() {
+            any |= scaled(k) < *t;
         }
         any
     }
 }
 
-/// The largest squared target any pair can have: `1 + L^2 / 4` for `L` the
-/// sum of the two largest robot moves between instants (scaled).
-fn largest_target(pos: &[f64], axes: usize, n: usize, count: usize, inv: &[f64; 3]) -> f64 {
-    let mut steps: Vec<f64> = (0..n)
-        .map(|i| {
-            (0..count.saturating_sub(1))
-                .map(|k| {
-                    (0..axes)
-                        .map(|a| {
-                            let x = &pos[(a * n + i) * count..];
-                            (x[k + 1] - x[k]).powi(2) * inv[a]
-                        })
-                        .sum::<f64>()
-                })
-                .fold(0.0, f64::max)
-                .sqrt()
-        })
-        .collect();
-    steps.sort_unstable_by(|a, b| b.total_cmp(a));
-    let l = steps.iter().take(2).sum::<f64>();
-    1.0 + 0.25 * l * l
+/// Each of `n` robots' largest move between neighbouring instants, scaled
+/// by `inv`, into `out`.
+fn robot_steps(pos: &[f64], axes: usize, n: usize, count: usize, inv: &[f64; 3], out: &mut Vec<f64>) {
+    out.clear();
+    out.extend((0..n).map(|i| {
+        let mut largest: f64 = 0.0;
+        for k in 1..count {
+            let mut s = 0.0;
+            for (a, inv) in inv.iter().enumerate().take(axes) {
+                let x = &pos[(a * n + i) * count..(a * n + i + 1) * count];
+                s += (x[k] - x[k - 1]).powi(2) * inv;
+            }
+            largest = largest.max(s);
+        }
+        largest.sqrt()
+    }));
+}
+
+/// The largest move between neighbouring instants of each of `rows`
+/// (`axes` blocks of `rows` rows of `count` positions), per axis.
+fn largest_steps(pos: &[f64], axes: usize, rows: usize, count: usize) -> [f64; 3] {
+    let mut out = [0.0; 3];
+    for (a, largest) in out.iter_mut().enumerate().take(axes) {
+        for i in 0..rows {
+            let x = &pos[(a * rows + i) * count..(a * rows + i + 1) * count];
+            for k in 1..count {
+                *largest = f64::max(*largest, (x[k] - x[k - 1]).abs());
+            }
+        }
+    }
+    out
+}
+
+/// The largest squared target (`1 + L^2 / 4`) of a pair whose members move
+/// at most `p` and `q` per axis between instants, scaled by `inv`.
+fn largest_target(p: &[f64; 3], q: &[f64; 3], inv: &[f64; 3]) -> f64 {
+    let l2: f64 = (0..3).map(|a| (p[a] + q[a]).powi(2) * inv[a]).sum();
+    1.0 + 0.25 * l2
 }
 
 /// The correction `e - d` for offset `d = p(k) - q(k)` if its scaled

@@ -20,9 +20,8 @@ const RESTART_AMPLITUDE: f64 = 0.5;
 /// Straight segments closer than this (scaled) at one time meet head-on.
 const HEAD_ON: f64 = 0.5;
 
-/// A veering robot's detour, as a fraction of its move (at least, up to
-/// twice as much to fit the ring).
-const VEER: f64 = 0.25;
+/// The largest veering detour, as a fraction of the robot's move.
+const VEER: f64 = 0.5;
 
 /// Spacing of robots on the ring veering robots pass on, in separations.
 const VEER_SPACING: f64 = 1.3;
@@ -129,43 +128,43 @@ impl Engine {
     }
 
     /// Breaks symmetric deadlocks (antipodal swaps, crossing lanes): every
-    /// robot whose straight segment meets another's head-on, at the same
-    /// point at the same time (scaled distance below [`HEAD_ON`] along
-    /// segments traversed with one timing), veers to the left of its motion
-    /// in the middle of the horizon, all the same way round, like traffic in
-    /// a roundabout. The detour is a bump on the interior coefficients, so
-    /// the boundary conditions still hold; it grows with the robots that
-    /// meet, so that they fit on a ring around the meeting point.
+    /// robot whose straight segment meets others head-on, at the same point
+    /// at the same time (scaled distance below [`HEAD_ON`] along segments
+    /// traversed with one timing), veers to the left of its motion in the
+    /// middle of the horizon, all the same way round, like traffic in a
+    /// roundabout. The detour is a bump on the interior coefficients, so the
+    /// boundary conditions still hold; its size is that of a ring on which
+    /// the robot and those it meets fit side by side (one separation for a
+    /// pair, more for a swap), at most half its move.
     fn veer(&self, problem: &Problem, xi: &mut [f64]) {
         let (n, nx, dim) = (self.team.robots, self.n_xi, self.team.dim);
         let (a, b) = self.team.separation();
         let moves: Vec<Vector3<f64>> = (0..n).map(|i| problem.goals[i] - problem.starts[i].position).collect();
-        let mut meets = vec![false; n];
+        let mut meets = vec![0usize; n];
         for i in 0..n {
             for j in i + 1..n {
                 let d0 = problem.starts[i].position - problem.starts[j].position;
                 let dd = moves[i] - moves[j];
                 let t = if dd.norm_squared() > 0.0 { (-d0.dot(&dd) / dd.norm_squared()).clamp(0.0, 1.0) } else { 0.0 };
                 if scaled_norm(dim, &(d0 + dd * t), a, b) < HEAD_ON {
-                    meets[i] = true;
-                    meets[j] = true;
+                    meets[i] += 1;
+                    meets[j] += 1;
                 }
             }
         }
-        let count = meets.iter().filter(|&&m| m).count();
-        if count == 0 {
+        if meets.iter().all(|&m| m == 0) {
             return;
         }
-        // Bernstein coefficients 3..=7 of degree 10 lift the middle by 0.89.
+        // The bump: the interior coefficients, whose curve lifts the middle.
         let interior = BOUNDARY_ROWS / 2..nx - BOUNDARY_ROWS / 2;
-        let lift: f64 = interior.clone().map(|c| crate::basis::bernstein_row(nx - 1, 0, 0.5)[c]).sum();
-        let ring = count as f64 * VEER_SPACING * a / std::f64::consts::TAU;
-        for i in (0..n).filter(|&i| meets[i]) {
+        let middle = crate::basis::bernstein_row(nx - 1, 0, 0.5);
+        let lift: f64 = interior.clone().map(|c| middle[c]).sum();
+        for i in (0..n).filter(|&i| meets[i] > 0) {
             let m = moves[i];
-            let length = m.norm();
             let flat = Vector3::new(m.x, m.y, 0.0);
             let left = if flat.norm() > 1e-9 { Vector3::new(-m.y, m.x, 0.0) / flat.norm() } else { Vector3::x() };
-            let amplitude = (VEER * length).max(ring).min(2.0 * VEER * length);
+            let ring = (meets[i] + 1) as f64 * VEER_SPACING * a / std::f64::consts::TAU;
+            let amplitude = ring.max(a).min(VEER * m.norm());
             for ax in 0..dim.axes() {
                 let row = &mut xi[(ax * n + i) * nx..(ax * n + i + 1) * nx];
                 for c in interior.clone() {
