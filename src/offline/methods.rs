@@ -25,7 +25,8 @@ use serde::Serialize;
 pub enum Method {
     /// The optimiser and the learned pipeline raced on the two cores: the
     /// first verified plan wins and the other is cancelled (the optimiser
-    /// alone where the learned planner has no weights for the team).
+    /// alone for teams over 32 robots, or where the learned planner has no
+    /// weights for the team).
     Auto,
     /// The from-scratch AM optimiser (smoothness cost, cold start).
     Baseline,
@@ -220,6 +221,12 @@ enum Use {
     StudyFilter,
 }
 
+/// The largest team `auto` races the learned pipeline for (the largest the
+/// shipped weights were trained on). Above it the optimiser plans alone:
+/// on crowds of 64 robots it won every race (seeds 11-30), and at 128 the
+/// racing pipeline slowed it from 182 to 248 ms median (docs/BENCHMARKS.md).
+const RACE_MAX_ROBOTS: usize = 32;
+
 /// Cap of the residual studies' iterations.
 const STUDY_CAP: usize = 10_000;
 
@@ -236,13 +243,15 @@ pub struct Planner {
     learned_args: Option<LearnedArgs>,
     learned: Option<LearnedPlanner>,
     engines: Vec<EngineSet>,
+    /// `auto` said once why it planned with the optimiser alone.
+    said_alone: bool,
 }
 
 impl Planner {
     /// A planner applying `overrides` to the default settings; the learned
     /// methods load their weights from `learned` on first use.
     pub fn new(overrides: Overrides, learned: Option<LearnedArgs>) -> Self {
-        Self { overrides, learned_args: learned, learned: None, engines: Vec::new() }
+        Self { overrides, learned_args: learned, learned: None, engines: Vec::new(), said_alone: false }
     }
 
     /// The objective and settings of the engines for `usage`.
@@ -433,7 +442,13 @@ impl Planner {
     /// verified, the optimiser's), studied as that method's run would be.
     fn race(&mut self, problem: &Problem, seed: u64) -> Result<Record> {
         let obstacles = problem.obstacles.len();
-        if self.learned_unavailable(&problem.team).is_some() {
+        let too_big = (problem.team.robots > RACE_MAX_ROBOTS)
+            .then(|| format!("the learned planner races teams of up to {RACE_MAX_ROBOTS} robots"));
+        if let Some(why) = too_big.or_else(|| self.learned_unavailable(&problem.team)) {
+            if !self.said_alone {
+                eprintln!("auto: the optimiser plans alone: {why}");
+                self.said_alone = true;
+            }
             return self.run_hiding(Method::Baseline, problem, 0, seed);
         }
         let optimiser_set = self.engine_set(&problem.team, obstacles, Use::Optimise)?;

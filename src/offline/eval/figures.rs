@@ -1,6 +1,6 @@
 //! The evaluation report's figures, drawn with plotters as SVG: residual
-//! decay bands, curves over a shared axis, trajectory plots and time
-//! snapshots of a scene.
+//! decay bands, curves over a shared axis (or on log-log axes), trajectory
+//! plots and time snapshots of a scene.
 
 use std::path::Path;
 
@@ -164,6 +164,37 @@ pub fn curves(
         chart.configure_mesh().x_desc(x_desc).y_desc(y_desc).draw()?;
         draw_curves(&mut chart, curves)?;
     }
+    root.present().map_err(|e| anyhow!("writing {}: {e}", path.display()))
+}
+
+/// Curves on log-log axes, the x axis labelled at the points' x values
+/// (points with a value of 0 or less, which a log axis cannot show, are
+/// left out).
+pub fn log_log(path: &Path, title: &str, (x_desc, y_desc): (&str, &str), curves: &[Curve]) -> Result<()> {
+    let shown: Vec<Curve> = curves
+        .iter()
+        .map(|c| Curve {
+            label: c.label.clone(),
+            colour: c.colour,
+            points: c.points.iter().copied().filter(|p| p.0 > 0.0 && p.1 > 0.0 && p.0.is_finite()).collect(),
+        })
+        .collect();
+    let mut xs: Vec<f64> = shown.iter().flat_map(|c| c.points.iter().map(|p| p.0)).collect();
+    xs.sort_by(f64::total_cmp);
+    xs.dedup();
+    let (x0, x1) = xs.iter().fold((f64::INFINITY, 0.0f64), |(lo, hi), &x| (lo.min(x), hi.max(x)));
+    let (x0, x1) = if x0 < x1 { (x0 / 1.25, x1 * 1.25) } else { (1.0, 10.0) };
+    let (y0, y1) = log_range(shown.iter().flat_map(|c| c.points.iter().map(|p| &p.1)));
+    let root = SVGBackend::new(path, (720, 440)).into_drawing_area();
+    root.fill(&WHITE)?;
+    let mut chart = ChartBuilder::on(&root)
+        .caption(title, (FONT, 20))
+        .margin(14)
+        .x_label_area_size(40)
+        .y_label_area_size(64)
+        .build_cartesian_2d((x0..x1).log_scale().with_key_points(xs), (y0..y1).log_scale())?;
+    chart.configure_mesh().x_desc(x_desc).y_desc(y_desc).x_label_formatter(&|x| format!("{x}")).draw()?;
+    draw_curves(&mut chart, &shown)?;
     root.present().map_err(|e| anyhow!("writing {}: {e}", path.display()))
 }
 

@@ -2,10 +2,13 @@
 //! and the learned pipeline (with and without the SF initialiser) on the
 //! same seeded test instances (seeds from `--seed`, never used for
 //! training), in one process, one instance at a time, and writes
-//! `docs/RESULTS.md` with six tables and SVG figures under `docs/figures/`.
-//! Rows a method cannot produce (no weights for the team) say so instead
-//! of showing a number.
+//! `docs/RESULTS.md` with eight tables and SVG figures under `docs/figures/`:
+//! six on the benchmark's random instances, then the scene families and
+//! the baseline's scaling with the team size ([`families`]). Rows a method
+//! cannot produce (no weights for the team) say so instead of showing a
+//! number.
 
+mod families;
 mod figures;
 mod measures;
 mod report;
@@ -20,6 +23,7 @@ use clap::Args;
 use flowopt_planner::am::AmSettings;
 use flowopt_planner::problem::{Dim, Problem, Team};
 use flowopt_planner::scenario::{RandomScenario, antipodal};
+use flowopt_planner::scenes::{Family, Scene};
 use flowopt_planner::working_point::WorkingPoint;
 use indicatif::{ProgressBar, ProgressStyle};
 
@@ -72,7 +76,7 @@ const BUDGETS_MS: [f64; 12] = [0.5, 1.0, 2.0, 5.0, 10.0, 20.0, 35.0, 50.0, 80.0,
 
 /// docs/BENCHMARKS.md's criterion time of one 16-robot 2D safety-filter
 /// iteration (µs), the reference of the report's machine-speed line.
-const BENCHMARKS_SF_ITERATION_US: f64 = 5.57;
+const BENCHMARKS_SF_ITERATION_US: f64 = 12.75;
 
 /// Instants of the pairwise-distance profiles (table 6).
 const PAIRWISE_INSTANTS: usize = 101;
@@ -81,7 +85,8 @@ const PAIRWISE_INSTANTS: usize = 101;
 const DECAY_ITERATIONS: usize = 600;
 
 /// One row of instances: a team, a generated obstacle count, how many of
-/// them (the last ones) are hidden from the networks, and a method.
+/// them (the last ones) are hidden from the networks, and a method; the
+/// benchmark's random instances, or a scene family's.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 struct Row {
     dim: Dim,
@@ -90,13 +95,27 @@ struct Row {
     /// Obstacles the safety filter enforces but the networks do not see.
     hidden: usize,
     method: Method,
+    /// The family of `flowopt_planner::scenes` generating the instances,
+    /// planned without the residual study; `None`: the benchmark's
+    /// [`RandomScenario`] instances, with the study.
+    family: Option<Family>,
+    /// Most instances of the row (slow scenes); `None`: `--problems`.
+    cap: Option<u64>,
 }
 
 impl Row {
     fn new(dim: Dim, robots: usize, obstacles: usize, method: Method) -> Self {
-        Self { dim, robots, obstacles, hidden: 0, method }
+        Self { dim, robots, obstacles, hidden: 0, method, family: None, cap: None }
     }
 
+    /// A row of `family`'s scenes (no obstacles beyond the family's own),
+    /// at most `cap` instances.
+    fn scene(family: Family, dim: Dim, robots: usize, method: Method, cap: u64) -> Self {
+        Self { family: Some(family), cap: Some(cap), ..Self::new(dim, robots, 0, method) }
+    }
+
+    /// The default team of the row's shape (a scene family grows its
+    /// workspace with the team; dimension, robots and basis are these).
     fn team(&self) -> Team {
         Team::default_for(self.dim, self.robots)
     }
@@ -108,19 +127,39 @@ impl Row {
 
     /// Instance `seed` of this row.
     fn instance(&self, seed: u64) -> Result<Problem> {
-        RandomScenario::new(self.team())
-            .with_obstacles(self.obstacles)
-            .generate(seed)
-            .with_context(|| format!("generating the instance with seed {seed}"))
+        match self.family {
+            None => RandomScenario::new(self.team())
+                .with_obstacles(self.obstacles)
+                .generate(seed)
+                .with_context(|| format!("generating the instance with seed {seed}")),
+            Some(family) => {
+                let scene = Scene { obstacles: self.obstacles, ..Scene::new(family, self.dim, self.robots, seed) };
+                let (problem, _) = scene
+                    .generate()
+                    .with_context(|| format!("generating the {} scene with seed {seed}", family.name()))?;
+                Ok(problem)
+            }
+        }
+    }
+
+    /// Instances of the row when a row has `problems` by default.
+    fn count(&self, problems: u64) -> u64 {
+        self.cap.map_or(problems, |cap| cap.min(problems))
     }
 }
 
 /// Records per row, computed on first use.
 struct Runs {
     planner: Planner,
+    /// The planner of the scene-family rows: no residual study (its
+    /// 10,000 untimed iterations per instance dominate on big teams).
+    scenes: Planner,
     problems: u64,
     seed: u64,
     records: HashMap<Row, Vec<Record>>,
+    /// Why a row could not be planned (scene-family rows, see
+    /// [`Runs::for_scene_table`]).
+    failed: HashMap<Row, String>,
     progress: ProgressBar,
     /// Why the learned methods cannot plan a team shape, per dimension.
     unavailable: HashMap<Dim, Option<String>>,
@@ -150,23 +189,48 @@ impl Runs {
         self.get(row).map(Some)
     }
 
+    /// [`Runs::for_table`] for the scene-family rows, where a row that
+    /// cannot be planned (an error while generating or planning an
+    /// instance) gets a table row saying so and the report goes on.
+    fn for_scene_table(&mut self, row: Row, table: &mut Table, lead: &[String]) -> Option<&[Record]> {
+        if let Some(reason) = self.unavailable(row) {
+            table.unavailable(lead, &reason);
+            return None;
+        }
+        if !self.failed.contains_key(&row)
+            && let Some(error) = self.get(row).err()
+        {
+            self.failed.insert(row, format!("{error:#}"));
+        }
+        if let Some(error) = self.failed.get(&row) {
+            let mut cells = lead.to_vec();
+            cells.push(format!("failed: {error}"));
+            table.row(cells);
+            return None;
+        }
+        self.records.get(&row).map(Vec::as_slice)
+    }
+
     /// The records of `row`, planning its instances the first time.
     fn get(&mut self, row: Row) -> Result<&[Record]> {
         if !self.records.contains_key(&row) {
             self.progress.set_message(format!(
-                "{:?} {}D {} robots {} obstacles ({} hidden)",
+                "{:?} {}D {} robots {} obstacles ({} hidden){}",
                 row.method,
                 row.dim.axes(),
                 row.robots,
                 row.obstacles,
-                row.hidden
+                row.hidden,
+                row.family.map_or(String::new(), |f| format!(" {} scenes", f.name()))
             ));
-            self.progress.inc_length(self.problems);
-            let mut records = Vec::with_capacity(self.problems as usize);
-            for i in 0..self.problems {
+            let count = row.count(self.problems);
+            self.progress.inc_length(count);
+            let planner = if row.family.is_some() { &mut self.scenes } else { &mut self.planner };
+            let mut records = Vec::with_capacity(count as usize);
+            for i in 0..count {
                 let seed = self.seed + i;
                 let problem = row.instance(seed)?;
-                records.push(self.planner.run_hiding(row.method, &problem, row.hidden, seed)?);
+                records.push(planner.run_hiding(row.method, &problem, row.hidden, seed)?);
                 self.progress.inc(1);
             }
             self.records.insert(row, records);
@@ -184,9 +248,11 @@ pub fn run(args: EvalArgs) -> Result<()> {
     progress.set_style(ProgressStyle::with_template("{bar:40} {pos}/{len} {msg} [{elapsed_precise}]")?);
     let mut runs = Runs {
         planner: Planner::new(Overrides::default(), Some(args.learned.clone())),
+        scenes: Planner::new(Overrides { no_study: true, ..Overrides::default() }, Some(args.learned.clone())),
         problems,
         seed: args.seed,
         records: HashMap::new(),
+        failed: HashMap::new(),
         progress,
         unavailable: HashMap::new(),
     };
@@ -202,6 +268,8 @@ pub fn run(args: EvalArgs) -> Result<()> {
     doc.push_str(&clearance(&mut runs, &command, &args.figures, &figures)?);
     doc.push_str(&residual_figure(&mut runs, &args.figures, &figures)?);
     doc.push_str(&trajectory_figures(&mut runs, &args, &figures)?);
+    doc.push_str(&families::family_table(&mut runs, &command)?);
+    doc.push_str(&families::scaling(&mut runs, &command, &args.figures, &figures)?);
     runs.progress.finish_and_clear();
 
     let header = header(&HeaderFacts {
@@ -300,7 +368,8 @@ fn header(f: &HeaderFacts) -> String {
          (16 robots, 2D) took {:.1} µs; docs/BENCHMARKS.md has {BENCHMARKS_SF_ITERATION_US} µs there, so \
          times here compare with that page's in that ratio. Every table and figure below comes from that one \
          run, on the same seeded test instances for every method (seeds {}..{}, {} per row; table 4 plans its \
-         own batches, seeds shown; training data uses seeds from 10^9), planned one at a time in one process, \
+         own batches, seeds shown; tables 7 and 8 plan scene families' instances from the same first seed, \
+         at most as many per row, counts shown; training data uses seeds from 10^9), planned one at a time in one process, \
          wall-clock times per instance.\n\n\
          Methods: **baseline** is the from-scratch AM optimiser (smoothness cost, routed cold start, up to {} \
          restarts sharing an iteration cap of {}); **flowopt** is the learned pipeline ({} flow candidates, {} \
