@@ -192,26 +192,30 @@ fn random_vector(rng: &mut ChaCha8Rng, dim: Dim, max: f64) -> Vector3<f64> {
     }
 }
 
+/// Point `i` of `n` evenly spaced on the unit circle (2D) or a unit
+/// Fibonacci sphere (3D) around the origin, turned by `turn` (rad) about z.
+pub(crate) fn ring_point(dim: Dim, i: usize, n: usize, turn: f64) -> Vector3<f64> {
+    match dim {
+        Dim::Two => {
+            let angle = turn + std::f64::consts::TAU * i as f64 / n as f64;
+            Vector3::new(angle.cos(), angle.sin(), 0.0)
+        }
+        Dim::Three => {
+            let z = 1.0 - 2.0 * (i as f64 + 0.5) / n as f64;
+            let ring = (1.0 - z * z).sqrt();
+            let angle = turn + i as f64 * 2.399_963_229_728_653;
+            Vector3::new(ring * angle.cos(), ring * angle.sin(), z)
+        }
+    }
+}
+
 /// The antipodal swap: robots evenly spaced on a circle (2D) or a Fibonacci
 /// sphere (3D) of `radius` around the workspace centre, each going to the
 /// diametrically opposite point.
 pub fn antipodal(team: &Team, radius: f64) -> Result<Problem, ScenarioError> {
     let n = team.robots;
     let centre = (team.workspace.min + team.workspace.max) / 2.0;
-    let offsets: Vec<Vector3<f64>> = (0..n)
-        .map(|i| match team.dim {
-            Dim::Two => {
-                let angle = std::f64::consts::TAU * i as f64 / n as f64;
-                Vector3::new(angle.cos(), angle.sin(), 0.0) * radius
-            }
-            Dim::Three => {
-                let z = 1.0 - 2.0 * (i as f64 + 0.5) / n as f64;
-                let ring = (1.0 - z * z).sqrt();
-                let angle = i as f64 * 2.399_963_229_728_653;
-                Vector3::new(ring * angle.cos(), ring * angle.sin(), z) * radius
-            }
-        })
-        .collect();
+    let offsets: Vec<Vector3<f64>> = (0..n).map(|i| ring_point(team.dim, i, n, 0.0) * radius).collect();
     let mut centre2 = centre;
     if team.dim == Dim::Two {
         centre2.z = 0.0;

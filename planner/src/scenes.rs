@@ -32,7 +32,7 @@ use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
 use crate::problem::{Dim, Obstacle, Problem, Spheroid, StartState, Team, Workspace};
-use crate::scenario::{RandomScenario, ScenarioError};
+use crate::scenario::{RandomScenario, ScenarioError, ring_point};
 
 /// Spacing of robots placed in formations, in separations.
 const SPACING: f64 = 1.4;
@@ -185,20 +185,7 @@ impl Scene {
         loop {
             let team = team_in(dim, n, radius / 0.9);
             let (a, b) = team.separation();
-            let offsets: Vec<Vector3<f64>> = (0..n)
-                .map(|i| match dim {
-                    Dim::Two => {
-                        let angle = turn + std::f64::consts::TAU * i as f64 / n as f64;
-                        Vector3::new(angle.cos(), angle.sin(), 0.0) * radius
-                    }
-                    Dim::Three => {
-                        let z = 1.0 - 2.0 * (i as f64 + 0.5) / n as f64;
-                        let ring = (1.0 - z * z).sqrt();
-                        let angle = turn + i as f64 * 2.399_963_229_728_653;
-                        Vector3::new(ring * angle.cos(), ring * angle.sin(), z) * radius
-                    }
-                })
-                .collect();
+            let offsets: Vec<Vector3<f64>> = (0..n).map(|i| ring_point(dim, i, n, turn) * radius).collect();
             let spaced = (0..n).all(|i| {
                 (i + 1..n).all(|j| crate::problem::scaled_norm(dim, &(offsets[i] - offsets[j]), a, b) >= SPACING)
             });
@@ -313,20 +300,7 @@ impl Scene {
         let (a, _) = team.separation();
         let starts = self.block(n, Vector3::zeros(), 0, rng);
         let radius = (0.8 * w).max(n as f64 * SPACING * a / std::f64::consts::TAU);
-        let mut goals: Vec<Vector3<f64>> = (0..n)
-            .map(|i| match dim {
-                Dim::Two => {
-                    let angle = std::f64::consts::TAU * i as f64 / n as f64;
-                    Vector3::new(angle.cos(), angle.sin(), 0.0) * radius
-                }
-                Dim::Three => {
-                    let z = 1.0 - 2.0 * (i as f64 + 0.5) / n as f64;
-                    let ring = (1.0 - z * z).sqrt();
-                    let angle = i as f64 * 2.399_963_229_728_653;
-                    Vector3::new(ring * angle.cos(), ring * angle.sin(), z) * radius
-                }
-            })
-            .collect();
+        let mut goals: Vec<Vector3<f64>> = (0..n).map(|i| ring_point(dim, i, n, 0.0) * radius).collect();
         goals.shuffle(rng);
         fit(team, starts, goals, Vec::new())
     }

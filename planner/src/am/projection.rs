@@ -139,7 +139,7 @@ pub(crate) struct Projection {
     pub corr: Vec<f64>,
     /// Robots with any non-zero correction.
     pub touched: Vec<bool>,
-    /// One pair's scaled squared distances and squared targets per instant.
+    /// One pair's squared targets and moves per instant.
     scratch: Scratch,
     broad: BroadPhase,
     /// Each robot's largest scaled move between instants (chord inflation).
