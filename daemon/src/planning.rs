@@ -290,6 +290,8 @@ impl TeamPlanner {
                 steps: l.flow_steps,
                 top_k: l.top_k,
                 use_init: planner.model().has_init(),
+                // Racing the optimiser, the learned planner keeps to one core.
+                threads: 1,
                 ..PipelineSettings::default()
             };
             methods.push(Method::Learned { planner: Box::new(planner), settings, filters, plans: 0 });

@@ -1,4 +1,4 @@
-//! `flowopt datagen`: solve seeded random instances with the from-scratch
+//! `flowopt datagen`: solve seeded instances of a scene family with the from-scratch
 //! optimiser on every core and keep the successful solutions as a
 //! [`crate::dataset`]. Shards are written atomically and skipped when
 //! present, so an interrupted run resumes where it stopped.
@@ -10,7 +10,6 @@ use candle_core::{Device, Tensor};
 use flowopt_planner::am::{AmSettings, Engine, Objective};
 use flowopt_planner::metrics::Metrics;
 use flowopt_planner::plan::JointPlan;
-use flowopt_planner::problem::Team;
 
 use crate::ModelError;
 use crate::coding::{Coding, conditions, obstacle_width, robot_width};
@@ -49,12 +48,12 @@ pub fn generate(
     } else {
         write_json(&config_path, config)?;
     }
-    let dim = config.dimension()?;
     let mut shards = Vec::new();
     for &robots in &config.robots {
-        let team = Team::default_for(dim, robots);
-        let coding = Coding::new(&team)?;
         for obstacles in 0..=config.max_obstacles {
+            // The family's workspace for this team (its first instance's).
+            let team = config.problem(robots, obstacles, config.seed(robots, obstacles, 0))?.team;
+            let coding = Coding::new(&team)?;
             let engine = Engine::new(&team, obstacles, Objective::smoothness(), AmSettings::optimiser())?;
             for shard in 0..config.shards_per_bucket() {
                 let file = DatagenConfig::shard_name(robots, obstacles, shard);
@@ -97,7 +96,7 @@ fn solve_range(
     range: std::ops::Range<usize>,
     threads: usize,
 ) -> Result<Vec<Solved>, ModelError> {
-    crate::runtime::strided(range.len(), threads, |j| {
+    crate::runtime::parallel(range.len(), threads, |j| {
         let index = range.start + j;
         let seed = config.seed(robots, obstacles, index);
         // Instances too dense to place are skipped like failures.
@@ -155,12 +154,14 @@ pub(crate) fn write_json(path: &Path, value: &impl serde::Serialize) -> Result<(
 mod tests {
     use super::*;
     use crate::dataset::Dataset;
+    use flowopt_planner::scenes::Family;
 
     #[test]
     fn a_tiny_dataset_round_trips_and_resumes() {
         let dir = std::env::temp_dir().join(format!("flowopt-datagen-test-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&dir);
         let config = DatagenConfig {
+            family: Family::Random,
             dim: 2,
             robots: vec![3],
             max_obstacles: 1,
@@ -189,6 +190,35 @@ mod tests {
         // Another configuration in the same directory is refused.
         let other = DatagenConfig { per_bucket: 4, ..config };
         assert!(matches!(generate(&other, &dir, 1, |_| {}), Err(ModelError::Config(_))));
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn a_family_dataset_holds_that_familys_scenes() {
+        let dir = std::env::temp_dir().join(format!("flowopt-datagen-swap-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let config = DatagenConfig {
+            family: Family::Swap,
+            dim: 2,
+            robots: vec![4],
+            max_obstacles: 0,
+            start_speed: 0.0,
+            per_bucket: 2,
+            shard_size: 2,
+            first_seed: 1_000_000_000,
+        };
+        let manifest = generate(&config, &dir, 1, |_| {}).unwrap();
+        assert_eq!(manifest.kept, 2, "the optimiser solves 4-robot swaps");
+        let data = Dataset::load(&dir).unwrap();
+        let bucket = &data.buckets[0];
+        for (row, &seed) in bucket.seeds.iter().enumerate() {
+            let problem = config.problem(4, 0, seed).unwrap();
+            for (start, goal) in problem.starts.iter().zip(&problem.goals) {
+                assert!((start.position + goal).norm() < 1e-12, "an antipodal swap");
+            }
+            let rows = bucket.robot_rows.get(row).unwrap().flatten_all().unwrap().to_vec1::<f32>().unwrap();
+            assert_eq!(rows, conditions(&problem).0);
+        }
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }

@@ -1,4 +1,5 @@
-//! The training dataset: optimiser solutions of seeded random instances,
+//! The training dataset: optimiser solutions of seeded instances of a scene
+//! family (`flowopt_planner::scenes`; the random benchmark by default),
 //! stored as safetensors shards, one bucket per (team size, obstacle count),
 //! with a JSON manifest that records the generating configuration.
 //!
@@ -17,8 +18,8 @@ use std::io::Read;
 use std::path::{Path, PathBuf};
 
 use candle_core::{DType, Device, Tensor};
-use flowopt_planner::problem::{Dim, Problem, Team};
-use flowopt_planner::scenario::RandomScenario;
+use flowopt_planner::problem::{Dim, Problem};
+use flowopt_planner::scenes::{Family, Scene};
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 
@@ -34,13 +35,18 @@ pub const VERSION: u32 = 1;
 /// What `flowopt datagen` generates.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct DatagenConfig {
+    /// Scene family (`random` in datasets written before families).
+    #[serde(default)]
+    pub family: Family,
     /// Workspace dimension (2 or 3).
     pub dim: usize,
     /// Team sizes.
     pub robots: Vec<usize>,
-    /// Obstacle counts `0..=max_obstacles` (static obstacles), one bucket each.
+    /// Obstacle counts `0..=max_obstacles` (static obstacles), one bucket
+    /// each; only the random and crowd families place random obstacles.
     pub max_obstacles: usize,
-    /// Largest start speed (m/s): plans start from moving states.
+    /// Largest start speed (m/s) of the random and crowd families: plans
+    /// start from moving states.
     pub start_speed: f64,
     /// Instances attempted per (team size, obstacle count) bucket.
     pub per_bucket: usize,
@@ -68,8 +74,12 @@ impl DatagenConfig {
 
     /// The instance a seed stands for.
     pub fn problem(&self, robots: usize, obstacles: usize, seed: u64) -> Result<Problem, ModelError> {
-        let team = Team::default_for(self.dimension()?, robots);
-        Ok(RandomScenario::new(team).with_obstacles(obstacles).with_start_speed(self.start_speed).generate(seed)?)
+        let scene = Scene {
+            obstacles,
+            start_speed: self.start_speed,
+            ..Scene::new(self.family, self.dimension()?, robots, seed)
+        };
+        Ok(scene.generate()?.0)
     }
 
     /// Shards per bucket.

@@ -1,4 +1,7 @@
-//! Process settings for fast CPU tensor code.
+//! Process settings for fast CPU tensor code, and the pool that spreads
+//! work over the cores.
+
+use std::sync::atomic::{AtomicUsize, Ordering};
 
 /// Call once, early in `main`, before any other thread starts.
 ///
@@ -31,26 +34,31 @@ pub unsafe fn configure(tensor_threads: Option<usize>) {
 }
 
 /// Runs `work(i)` for every `i` in `0..count` on `threads` scoped threads
-/// (item `i` on thread `i % threads`) and returns the `Some` results in
-/// index order; the first error (or a panicked thread) fails the whole.
-pub fn strided<T: Send>(
+/// (each free thread takes the next `i` in order) and returns the `Some`
+/// results in index order; the first error (or a panicked thread) fails the
+/// whole.
+pub fn parallel<T: Send>(
     count: usize,
     threads: usize,
     work: impl Fn(usize) -> Result<Option<T>, crate::ModelError> + Sync,
 ) -> Result<Vec<T>, crate::ModelError> {
     let threads = threads.clamp(1, count.max(1));
-    let work = &work;
+    let next = AtomicUsize::new(0);
+    let (work, next) = (&work, &next);
     let results: Vec<Result<Vec<(usize, T)>, crate::ModelError>> = std::thread::scope(|scope| {
         let handles: Vec<_> = (0..threads)
-            .map(|t| {
+            .map(|_| {
                 scope.spawn(move || {
                     let mut out = Vec::new();
-                    for i in (t..count).step_by(threads) {
+                    loop {
+                        let i = next.fetch_add(1, Ordering::Relaxed);
+                        if i >= count {
+                            return Ok(out);
+                        }
                         if let Some(v) = work(i)? {
                             out.push((i, v));
                         }
                     }
-                    Ok(out)
                 })
             })
             .collect();

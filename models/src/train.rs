@@ -104,6 +104,8 @@ pub(crate) struct Split {
     pub data: Bucket,
     /// Instances `0..train` train, the rest validate.
     pub train: usize,
+    /// Index of the dataset it came from.
+    pub source: usize,
 }
 
 impl Split {
@@ -151,7 +153,7 @@ pub fn statistics(data: &[(PathBuf, Dataset)]) -> Result<Stats, ModelError> {
 /// Normalises and splits every bucket.
 pub(crate) fn split(data: &[(PathBuf, Dataset)], stats: &Stats, fraction: f64) -> Result<Vec<Split>, ModelError> {
     let mut out = Vec::new();
-    for b in data.iter().flat_map(|(_, d)| &d.buckets) {
+    for (source, b) in data.iter().enumerate().flat_map(|(i, (_, d))| d.buckets.iter().map(move |b| (i, b))) {
         if b.len() < 2 {
             continue;
         }
@@ -166,6 +168,7 @@ pub(crate) fn split(data: &[(PathBuf, Dataset)], stats: &Stats, fraction: f64) -
                 tokens: stats.token.normalise(&b.tokens)?,
             },
             train: b.len() - held,
+            source,
         });
     }
     if out.is_empty() {
@@ -438,8 +441,6 @@ pub fn train_init(
     let flow = crate::weights::load::<FlowConfig>(flow_path, "flow")?;
     let stats = flow.stats.clone();
     let flow_net = FlowModel::new(flow.vars, &flow.config)?;
-    let config =
-        data.first().map(|(_, d)| d.manifest.config.clone()).ok_or_else(|| ModelError::Config("no dataset".into()))?;
     let all = split(data, &stats, cfg.validation_fraction)?;
     // Keep per bucket the first `per_bucket` training and up to a quarter
     // as many held-out instances, and make their flow samples.
@@ -452,7 +453,9 @@ pub fn train_init(
         let held = (samples.per_bucket / 4).max(1).min(s.data.len() - s.train);
         let ids: Vec<u32> = (0..train as u32).chain(s.train as u32..(s.train + held) as u32).collect();
         let (robots, obstacles, _) = s.batch(&ids)?;
-        let team = flowopt_planner::problem::Team::default_for(config.dimension()?, n);
+        // The bucket's instances, in their family's workspace.
+        let config = &data[s.source].1.manifest.config;
+        let team = config.problem(n, m, s.data.seeds[0])?.team;
         // The unrolled filter projects onto the fixed separation (no chord
         // inflation): its engine must too.
         let settings = AmSettings { chord: false, ..AmSettings::safety_filter() };
@@ -476,7 +479,7 @@ pub fn train_init(
         let seeds = ids.iter().map(|&i| s.data.seeds[i as usize]).collect();
         let data =
             Bucket { robots: n, obstacles: m, seeds, robot_rows: robots, obstacle_rows: obstacles, tokens: sampled };
-        splits.push(Split { data, train });
+        splits.push(Split { data, train, source: s.source });
         buckets.push(InitBucket { engine, sf, prepared });
     }
     let mut vars = VarMap::new();

@@ -8,11 +8,12 @@ use flowopt_models::datagen::generate;
 use flowopt_models::dataset::{DatagenConfig, Dataset};
 use flowopt_models::flow::FlowConfig;
 use flowopt_models::init::InitConfig;
-use flowopt_models::pipeline::{FlowOpt, PipelineSettings};
+use flowopt_models::pipeline::{FlowOpt, PipelineSettings, Settle};
 use flowopt_models::train::{InitData, TrainConfig, train_flow, train_init};
-use flowopt_planner::am::{AmSettings, Budget, Engine, Objective};
+use flowopt_planner::am::{AmSettings, Budget, Engine, Objective, Stop};
 use flowopt_planner::metrics::Metrics;
 use flowopt_planner::plan::JointPlan;
+use flowopt_planner::scenes::Family;
 
 fn scratch(name: &str) -> PathBuf {
     let dir = std::env::temp_dir().join(format!("flowopt-learned-{name}-{}", std::process::id()));
@@ -22,6 +23,7 @@ fn scratch(name: &str) -> PathBuf {
 
 fn tiny_data(dir: &Path) -> (DatagenConfig, Vec<(PathBuf, Dataset)>) {
     let config = DatagenConfig {
+        family: Family::Random,
         dim: 2,
         robots: vec![4],
         max_obstacles: 1,
@@ -91,7 +93,13 @@ fn tiny_networks_learn_and_the_pipeline_plans_with_them() {
     let team = flowopt_planner::problem::Team::default_for(flowopt_planner::problem::Dim::Two, 4);
     let problem = flowopt_planner::scenario::RandomScenario::new(team.clone()).with_obstacles(1).generate(3).unwrap();
     let sf = Engine::new(&team, 1, Objective::filter(init_cfg.sf_smoothing), AmSettings::safety_filter()).unwrap();
-    let settings = PipelineSettings { candidates: 6, steps: 2, top_k: 3, ..PipelineSettings::default() };
+    let settings = PipelineSettings {
+        candidates: 6,
+        steps: 2,
+        top_k: 3,
+        settle: Settle::Smoothest,
+        ..PipelineSettings::default()
+    };
     let out = planner.plan(&problem, &sf, &settings, 1, &Budget::unlimited()).unwrap();
     assert_eq!((out.samples.len(), out.refined.len()), (6, 3));
     assert!(out.refined.windows(2).all(|w| w[0].sample_primal <= w[1].sample_primal), "ranked by primal residual");
@@ -104,6 +112,22 @@ fn tiny_networks_learn_and_the_pipeline_plans_with_them() {
     assert_eq!(again.xi(), out.xi());
     let other = planner.plan(&problem, &sf, &settings, 2, &Budget::unlimited()).unwrap();
     assert_ne!(other.samples[0], out.samples[0]);
+
+    // Stopping at the first verified candidate returns the best-ranked one
+    // that verifies when every candidate runs to its end, on any number of
+    // threads; the candidates ranked above it ran to their end.
+    let best = out.refined.iter().position(|r| r.outcome.stop == Stop::Verified).expect("a candidate verifies");
+    for threads in [1, 2] {
+        let first = PipelineSettings { settle: Settle::FirstVerified, threads, ..settings.clone() };
+        let got = planner.plan(&problem, &sf, &first, 1, &Budget::unlimited()).unwrap();
+        assert!(got.verified);
+        assert_eq!(got.refined[got.chosen].rank, best, "{threads} threads");
+        assert_eq!(got.xi(), out.refined[best].outcome.state.xi.as_slice(), "{threads} threads");
+        assert_eq!(got.samples, out.samples, "{threads} threads: the same samples");
+        for r in got.refined.iter().filter(|r| r.rank < best) {
+            assert_eq!(r.outcome.stop, out.refined[r.rank].outcome.stop);
+        }
+    }
     std::fs::remove_dir_all(&dir).unwrap();
 }
 

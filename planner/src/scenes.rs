@@ -44,10 +44,11 @@ const PILLAR_PITCH: f64 = 0.7;
 const MAX_PILLARS: usize = 16;
 
 /// A kind of scene.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum Family {
     /// Uniform random starts and goals in the default box.
+    #[default]
     Random,
     /// Uniform random starts and goals at constant density.
     Crowd,

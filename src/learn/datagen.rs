@@ -9,12 +9,18 @@ use flowopt_models::datagen::generate;
 use flowopt_models::dataset::DatagenConfig;
 use indicatif::{ProgressBar, ProgressStyle};
 
+use crate::offline::instances::FamilyArg;
+
 /// Generate a training dataset of optimiser solutions (resumable).
 #[derive(Debug, Args)]
 pub struct DatagenArgs {
     /// Dataset directory (created; an interrupted run resumes in it).
     #[arg(long, default_value = "data/train")]
     out: PathBuf,
+    /// Scene family (`flowopt_planner::scenes`); the workspace grows with
+    /// the team for every family but `random`.
+    #[arg(long, value_enum, default_value = "random")]
+    family: FamilyArg,
     /// Workspace dimension.
     #[arg(long, default_value_t = 2)]
     dim: usize,
@@ -44,6 +50,7 @@ pub struct DatagenArgs {
 /// Runs `flowopt datagen`.
 pub fn run(args: DatagenArgs) -> Result<()> {
     let config = DatagenConfig {
+        family: args.family.into(),
         dim: args.dim,
         robots: args.robots,
         max_obstacles: args.max_obstacles,

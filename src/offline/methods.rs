@@ -8,13 +8,13 @@ use clap::ValueEnum;
 use std::path::PathBuf;
 
 use flowopt_models::flow::Solver;
-use flowopt_models::pipeline::{LearnedPlanner, PipelineOutcome, PipelineSettings, PipelineTimes, Query};
+use flowopt_models::pipeline::{LearnedPlanner, PipelineOutcome, PipelineSettings, PipelineTimes, Query, Settle};
 use flowopt_planner::am::{
     AmOutcome, AmSettings, AmState, Budget, Engine, EngineSet, Objective, Prepared, Residuals, Stop,
 };
 use flowopt_planner::metrics::Metrics;
 use flowopt_planner::plan::JointPlan;
-use flowopt_planner::problem::{Problem, Team};
+use flowopt_planner::problem::{Dim, Problem, Team};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
@@ -58,12 +58,16 @@ impl Method {
 /// The learned planner's weights and pipeline settings on the command line.
 #[derive(Debug, Clone, clap::Args)]
 pub struct LearnedArgs {
-    /// Flow policy weights.
-    #[arg(long, default_value = "models/weights/flow.safetensors")]
-    pub flow_weights: PathBuf,
-    /// SF initialiser weights.
-    #[arg(long, default_value = "models/weights/init.safetensors")]
-    pub init_weights: PathBuf,
+    /// Flow policy weights [default: the shipped weights for the team's
+    /// dimension, models/weights/flow.safetensors in 2D and
+    /// models/weights/flow3d.safetensors in 3D].
+    #[arg(long)]
+    pub flow_weights: Option<PathBuf>,
+    /// SF initialiser weights [default: the shipped ones for the team's
+    /// dimension, models/weights/init.safetensors in 2D and
+    /// models/weights/init3d.safetensors in 3D].
+    #[arg(long)]
+    pub init_weights: Option<PathBuf>,
     /// Candidates sampled per problem.
     #[arg(long, default_value_t = PipelineSettings::default().candidates)]
     pub candidates: usize,
@@ -87,6 +91,11 @@ pub struct LearnedArgs {
     /// rerouting of their robots before the safety filter).
     #[arg(long)]
     pub no_reroute: bool,
+    /// Refine every one of the top-k and return the smoothest verified plan
+    /// (the paper's selection), instead of stopping at the best-ranked
+    /// candidate that verifies.
+    #[arg(long)]
+    pub smoothest: bool,
 }
 
 /// Flow integrator on the command line.
@@ -108,6 +117,19 @@ pub fn smoothing_weight(text: &str) -> Result<f64, String> {
 }
 
 impl LearnedArgs {
+    /// The flow policy's and the initialiser's weights for teams of `dim`.
+    pub fn weights(&self, dim: Dim) -> (PathBuf, PathBuf) {
+        let suffix = match dim {
+            Dim::Two => "",
+            Dim::Three => "3d",
+        };
+        let shipped = |name: &str| PathBuf::from(format!("models/weights/{name}{suffix}.safetensors"));
+        (
+            self.flow_weights.clone().unwrap_or_else(|| shipped("flow")),
+            self.init_weights.clone().unwrap_or_else(|| shipped("init")),
+        )
+    }
+
     /// The safety filter's objective.
     pub fn sf_objective(&self) -> Objective {
         Objective::filter(self.sf_smoothing)
@@ -128,6 +150,7 @@ impl LearnedArgs {
             // Racing the optimiser, the pipeline refines on one core.
             threads: if method == Method::Auto { 1 } else { PipelineSettings::default().threads },
             reroute: !self.no_reroute,
+            settle: if self.smoothest { Settle::Smoothest } else { Settle::FirstVerified },
         }
     }
 }
@@ -241,7 +264,8 @@ fn first_below(history: &[Residuals], level: f64) -> Option<usize> {
 pub struct Planner {
     overrides: Overrides,
     learned_args: Option<LearnedArgs>,
-    learned: Option<LearnedPlanner>,
+    /// The learned planners loaded so far, per workspace dimension.
+    learned: Vec<(Dim, LearnedPlanner)>,
     engines: Vec<EngineSet>,
     /// `auto` said once why it planned with the optimiser alone.
     said_alone: bool,
@@ -251,7 +275,7 @@ impl Planner {
     /// A planner applying `overrides` to the default settings; the learned
     /// methods load their weights from `learned` on first use.
     pub fn new(overrides: Overrides, learned: Option<LearnedArgs>) -> Self {
-        Self { overrides, learned_args: learned, learned: None, engines: Vec::new(), said_alone: false }
+        Self { overrides, learned_args: learned, learned: Vec::new(), engines: Vec::new(), said_alone: false }
     }
 
     /// The objective and settings of the engines for `usage`.
@@ -320,25 +344,31 @@ impl Planner {
         })
     }
 
-    /// Loads the learned planner's weights on first use.
-    fn load_learned(&mut self) -> Result<()> {
+    /// The learned planner for teams of `dim`, its weights loaded on first
+    /// use.
+    fn load_learned(&mut self, dim: Dim) -> Result<&LearnedPlanner> {
         let args = self.learned_args.as_ref().context("no learned-planner weights were given")?;
-        if self.learned.is_none() {
-            let init = args.init_weights.exists().then_some(args.init_weights.as_path());
-            let learned = LearnedPlanner::load(&args.flow_weights, init, args.sf_smoothing)
-                .with_context(|| format!("loading the learned planner from {}", args.flow_weights.display()))?;
-            self.learned = Some(learned);
-        }
-        Ok(())
+        let index = match self.learned.iter().position(|(d, _)| *d == dim) {
+            Some(i) => i,
+            None => {
+                let (flow, init) = args.weights(dim);
+                let init = init.exists().then_some(init.as_path());
+                let learned = LearnedPlanner::load(&flow, init, args.sf_smoothing)
+                    .with_context(|| format!("loading the learned planner from {}", flow.display()))?;
+                self.learned.push((dim, learned));
+                self.learned.len() - 1
+            }
+        };
+        Ok(&self.learned[index].1)
     }
 
     /// Why the learned methods cannot plan for `team` (no weights, or
     /// weights for another dimension or basis), or `None` if they can.
     pub fn learned_unavailable(&mut self, team: &Team) -> Option<String> {
-        if let Err(e) = self.load_learned() {
-            return Some(format!("{e:#}"));
+        match self.load_learned(team.dim) {
+            Err(e) => Some(format!("{e:#}")),
+            Ok(learned) => learned.model().check(team).err().map(|e| e.to_string()),
         }
-        self.learned.as_ref()?.model().check(team).err().map(|e| e.to_string())
     }
 
     /// Plans `problem` with a learned method, its last `hidden` obstacles
@@ -370,13 +400,15 @@ impl Planner {
         let obstacles = first.obstacles.len();
         anyhow::ensure!(hidden <= obstacles, "cannot hide {hidden} of {obstacles} obstacles");
         let set = self.engine_set(&first.team, obstacles, Use::Filter)?;
-        self.load_learned()?;
-        let (Some(learned), Some(args)) = (self.learned.as_ref(), self.learned_args.as_ref()) else {
+        self.load_learned(first.team.dim)?;
+        let (Some((_, learned)), Some(args)) =
+            (self.learned.iter().find(|(d, _)| *d == first.team.dim), self.learned_args.as_ref())
+        else {
             anyhow::bail!("the learned planner is not loaded");
         };
         let model = learned.model();
         if method == Method::Flowopt && !model.has_init() {
-            anyhow::bail!("{} is missing: flowopt needs the SF initialiser", args.init_weights.display());
+            anyhow::bail!("{} is missing: flowopt needs the SF initialiser", args.weights(first.team.dim).1.display());
         }
         let seen: Vec<Problem> = problems
             .iter()
@@ -457,7 +489,7 @@ impl Planner {
         let (Some(optimiser), Some(sf), Some(learned)) = (
             self.engines[optimiser_set].get(obstacles),
             self.engines[filter_set].get(obstacles),
-            self.learned.as_ref(),
+            self.learned.iter().find(|(d, _)| *d == problem.team.dim).map(|(_, l)| l),
         ) else {
             anyhow::bail!("the racing planners are not loaded");
         };

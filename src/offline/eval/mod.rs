@@ -538,7 +538,8 @@ fn throughput(args: &EvalArgs, command: &str) -> Result<String> {
     const PROBLEMS: usize = 50;
     const CANDIDATES: usize = 10;
     const REFINED: usize = 5;
-    let learned = LearnedArgs { candidates: CANDIDATES, top_k: REFINED, ..args.learned.clone() };
+    // Every one of the best REFINED is refined (the paper's selection).
+    let learned = LearnedArgs { candidates: CANDIDATES, top_k: REFINED, smoothest: true, ..args.learned.clone() };
     let mut planner = Planner::new(Overrides::default(), Some(learned.clone()));
     let team = Team::default_for(Dim::Two, 16);
     let sampling = format!("sampling {} candidates ms", PROBLEMS * CANDIDATES);
