@@ -330,6 +330,17 @@ mod tests {
     }
 
     #[test]
+    fn the_shipped_3d_config_loads_with_3d_weights() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/team3d.toml");
+        let config = DaemonConfig::load(&path).unwrap();
+        let team = config.teams[0].team().unwrap();
+        assert_eq!((team.robots, team.dim), (16, Dim::Three));
+        let learned = config.teams[0].learned.as_ref().expect("3D teams race the learned planner");
+        assert!(learned.flow.is_file(), "{}", learned.flow.display());
+        assert!(learned.init.as_ref().is_some_and(|p| p.is_file()));
+    }
+
+    #[test]
     fn defaults_fill_what_a_team_leaves_out() {
         let config: DaemonConfig = toml::from_str(MINIMAL).unwrap();
         config.check().unwrap();

@@ -700,6 +700,21 @@ mod tests {
     }
 
     #[test]
+    fn the_3d_config_preloads_the_3d_weights_and_plans_cold() {
+        let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+        let config = crate::config::DaemonConfig::load(&root.join("config/team3d.toml")).unwrap();
+        let mut team = config.teams[0].clone();
+        team.name = "t3".into();
+        team.deadline_ms = 10_000.0;
+        let mut planner = TeamPlanner::preload(&team).unwrap();
+        assert_eq!(planner.cold.methods(), 2, "the learned pipeline races the optimiser");
+        let problem = RandomScenario::new(planner.team().clone()).generate(11).unwrap();
+        let a = answer(&mut planner, &problem, 1_000_000_000, Instant::now());
+        assert_eq!((a.follow, a.why, a.warm), (Follow::New, Why::None, false));
+        assert_verified_from(&planner, &problem);
+    }
+
+    #[test]
     fn a_cold_plan_then_a_warm_replan_along_it_are_both_verified() {
         let mut planner = TeamPlanner::preload(&config(8, "")).unwrap();
         let problem = RandomScenario::new(planner.team().clone()).generate(11).unwrap();

@@ -50,8 +50,16 @@ pub fn generate(
     }
     let mut shards = Vec::new();
     for &robots in &config.robots {
-        for obstacles in 0..=config.max_obstacles {
-            // The family's workspace for this team (its first instance's).
+        // One bucket per random obstacle count, or the one count of the
+        // obstacles a family places itself.
+        let counts = if config.family.takes_random_obstacles() {
+            (0..=config.max_obstacles).collect::<Vec<_>>()
+        } else {
+            vec![config.problem(robots, 0, config.seed(robots, 0, 0))?.obstacles.len()]
+        };
+        for obstacles in counts {
+            // The family's workspace for this team (its first instance's;
+            // an instance in another one gets an engine of its own).
             let team = config.problem(robots, obstacles, config.seed(robots, obstacles, 0))?.team;
             let coding = Coding::new(&team)?;
             let engine = Engine::new(&team, obstacles, Objective::smoothness(), AmSettings::optimiser())?;
@@ -99,8 +107,19 @@ fn solve_range(
     crate::runtime::parallel(range.len(), threads, |j| {
         let index = range.start + j;
         let seed = config.seed(robots, obstacles, index);
-        // Instances too dense to place are skipped like failures.
+        // Instances too dense to place, or with another obstacle count,
+        // are skipped like failures.
         let Ok(problem) = config.problem(robots, obstacles, seed) else { return Ok(None) };
+        if problem.obstacles.len() != obstacles {
+            return Ok(None);
+        }
+        let own;
+        let engine = if problem.team == *engine.team() {
+            engine
+        } else {
+            own = Engine::new(&problem.team, obstacles, Objective::smoothness(), AmSettings::optimiser())?;
+            &own
+        };
         let xi = engine.solve(&problem)?.state.xi;
         let metrics = Metrics::measure(&problem, &JointPlan::new(&problem.team, xi.clone()));
         if !metrics.success(problem.team.separation().0) {
@@ -194,31 +213,39 @@ mod tests {
     }
 
     #[test]
-    fn a_family_dataset_holds_that_familys_scenes() {
-        let dir = std::env::temp_dir().join(format!("flowopt-datagen-swap-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
-        let config = DatagenConfig {
-            family: Family::Swap,
-            dim: 2,
-            robots: vec![4],
-            max_obstacles: 0,
-            start_speed: 0.0,
-            per_bucket: 2,
-            shard_size: 2,
-            first_seed: 1_000_000_000,
-        };
-        let manifest = generate(&config, &dir, 1, |_| {}).unwrap();
-        assert_eq!(manifest.kept, 2, "the optimiser solves 4-robot swaps");
-        let data = Dataset::load(&dir).unwrap();
-        let bucket = &data.buckets[0];
-        for (row, &seed) in bucket.seeds.iter().enumerate() {
-            let problem = config.problem(4, 0, seed).unwrap();
-            for (start, goal) in problem.starts.iter().zip(&problem.goals) {
-                assert!((start.position + goal).norm() < 1e-12, "an antipodal swap");
+    fn family_datasets_hold_their_familys_scenes() {
+        // The swap (antipodal goals), the crossing (its box varies with the
+        // seed) and the obstacle field (pillars of its own).
+        for family in [Family::Swap, Family::Crossing, Family::ObstacleField] {
+            let dir = std::env::temp_dir().join(format!("flowopt-datagen-{}-{}", family.name(), std::process::id()));
+            let _ = std::fs::remove_dir_all(&dir);
+            let config = DatagenConfig {
+                family,
+                dim: 2,
+                robots: vec![8],
+                max_obstacles: 3,
+                start_speed: 0.0,
+                per_bucket: 2,
+                shard_size: 2,
+                first_seed: 1_000_000_000,
+            };
+            let manifest = generate(&config, &dir, 1, |_| {}).unwrap();
+            assert_eq!(manifest.shards.len(), 1, "{family:?}: one bucket; the family places its own obstacles");
+            assert_eq!(manifest.kept, 2, "{family:?}: the optimiser solves 8-robot scenes");
+            let data = Dataset::load(&dir).unwrap();
+            let bucket = &data.buckets[0];
+            for (row, &seed) in bucket.seeds.iter().enumerate() {
+                let problem = config.problem(8, bucket.obstacles, seed).unwrap();
+                assert_eq!(problem.obstacles.len(), bucket.obstacles);
+                if family == Family::Swap {
+                    for (start, goal) in problem.starts.iter().zip(&problem.goals) {
+                        assert!((start.position + goal).norm() < 1e-12, "an antipodal swap");
+                    }
+                }
+                let rows = bucket.robot_rows.get(row).unwrap().flatten_all().unwrap().to_vec1::<f32>().unwrap();
+                assert_eq!(rows, conditions(&problem).0);
             }
-            let rows = bucket.robot_rows.get(row).unwrap().flatten_all().unwrap().to_vec1::<f32>().unwrap();
-            assert_eq!(rows, conditions(&problem).0);
+            std::fs::remove_dir_all(&dir).unwrap();
         }
-        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

@@ -67,6 +67,12 @@ impl Family {
     pub const ALL: [Family; 6] =
         [Family::Random, Family::Crowd, Family::Swap, Family::Crossing, Family::ObstacleField, Family::Formation];
 
+    /// Whether its scenes take [`Scene::obstacles`] random obstacles (the
+    /// others place their own, or none).
+    pub fn takes_random_obstacles(self) -> bool {
+        matches!(self, Family::Random | Family::Crowd)
+    }
+
     /// Its name in reports and on the command line.
     pub fn name(self) -> &'static str {
         match self {
