@@ -2,9 +2,9 @@
 //! straight (smoothest) curves: the diagnosis behind the pipeline's
 //! rerouting (docs/LEARNED.md).
 //!
-//! `cargo run --release -p flowopt-models --example obstacle_blindness [problems]`
+//! `cargo run --release -p flowopt-models --example obstacle_blindness [problems] [flow weights]`
 //! on unseen 16-robot, 8-obstacle instances (seeds 0..problems, default 100),
-//! with the shipped flow weights.
+//! with the shipped 2D flow weights unless others are given.
 
 use std::path::Path;
 
@@ -40,7 +40,8 @@ fn mean_abs(a: &[f64], b: &[f64]) -> f64 {
 fn main() -> anyhow::Result<()> {
     let problems: u64 = std::env::args().nth(1).map(|s| s.parse()).transpose()?.unwrap_or(100);
     let team = Team::default_for(Dim::Two, 16);
-    let flow = FlowOpt::load(Path::new("models/weights/flow.safetensors"), None)?;
+    let weights = std::env::args().nth(2).unwrap_or_else(|| "models/weights/flow.safetensors".into());
+    let flow = FlowOpt::load(Path::new(&weights), None)?;
     let filters = [0, 8].map(|m| Engine::new(&team, m, Objective::Projection, AmSettings::safety_filter()));
     let [Ok(free), Ok(cluttered)] = filters else { anyhow::bail!("building the safety filters") };
     let coding = Coding::new(&team)?;

@@ -33,10 +33,12 @@ pub unsafe fn configure(tensor_threads: Option<usize>) {
     }
 }
 
-/// Runs `work(i)` for every `i` in `0..count` on `threads` scoped threads
-/// (each free thread takes the next `i` in order) and returns the `Some`
-/// results in index order; the first error (or a panicked thread) fails the
-/// whole.
+/// Runs `work(i)` for every `i` in `0..count` on `threads` threads, the
+/// calling one and `threads - 1` scoped helpers (each free thread takes the
+/// next `i` in order), and returns the `Some` results in index order; the
+/// first error (or a panicked thread) fails the whole. The caller works
+/// rather than waits: a helper on an idle core of these virtual machines
+/// starts late (docs/LEARNED.md, "A warm-up to know about").
 pub fn parallel<T: Send>(
     count: usize,
     threads: usize,
@@ -45,28 +47,27 @@ pub fn parallel<T: Send>(
     let threads = threads.clamp(1, count.max(1));
     let next = AtomicUsize::new(0);
     let (work, next) = (&work, &next);
-    let results: Vec<Result<Vec<(usize, T)>, crate::ModelError>> = std::thread::scope(|scope| {
-        let handles: Vec<_> = (0..threads)
-            .map(|_| {
-                scope.spawn(move || {
-                    let mut out = Vec::new();
-                    loop {
-                        let i = next.fetch_add(1, Ordering::Relaxed);
-                        if i >= count {
-                            return Ok(out);
-                        }
-                        if let Some(v) = work(i)? {
-                            out.push((i, v));
-                        }
-                    }
-                })
-            })
-            .collect();
-        handles
-            .into_iter()
-            .map(|h| h.join().unwrap_or_else(|_| Err(crate::ModelError::Config("a worker thread panicked".into()))))
-            .collect()
-    });
+    let drain = move || -> Result<Vec<(usize, T)>, crate::ModelError> {
+        let mut out = Vec::new();
+        loop {
+            let i = next.fetch_add(1, Ordering::Relaxed);
+            if i >= count {
+                return Ok(out);
+            }
+            if let Some(v) = work(i)? {
+                out.push((i, v));
+            }
+        }
+    };
+    let results: Vec<Result<Vec<(usize, T)>, crate::ModelError>> =
+        std::thread::scope(|scope| {
+            let helpers: Vec<_> = (1..threads).map(|_| scope.spawn(drain)).collect();
+            let mut results = vec![drain()];
+            results.extend(helpers.into_iter().map(|h| {
+                h.join().unwrap_or_else(|_| Err(crate::ModelError::Config("a worker thread panicked".into())))
+            }));
+            results
+        });
     let mut all = Vec::new();
     for r in results {
         all.extend(r?);

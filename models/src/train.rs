@@ -473,6 +473,14 @@ pub fn train_init(
         let mut prepared = Vec::with_capacity(ids.len());
         for (j, &id) in ids.iter().enumerate() {
             let problem = config.problem(n, m, s.data.seeds[id as usize])?;
+            if problem.team != team {
+                return Err(ModelError::Config(format!(
+                    "{}: the {} family's instances lie in workspaces that vary with the seed; the initialiser \
+                     trains through one safety filter per bucket",
+                    data[s.source].0.display(),
+                    config.family.name()
+                )));
+            }
             let sample = coding.decode(&coding.reference(&problem), &raw[j * width..(j + 1) * width]);
             prepared.push(engine.prepare(&problem, Some(&sample))?);
         }

@@ -20,6 +20,7 @@ use std::time::Instant;
 
 use anyhow::{Context, Result};
 use clap::Args;
+use flowopt_models::pipeline::Settle;
 use flowopt_planner::am::AmSettings;
 use flowopt_planner::problem::{Dim, Problem, Team};
 use flowopt_planner::scenario::{RandomScenario, antipodal};
@@ -347,6 +348,13 @@ struct HeaderFacts<'a> {
 fn header(f: &HeaderFacts) -> String {
     let optimiser = AmSettings::optimiser();
     let pipeline = f.learned.settings(Method::Flowopt);
+    let settle = match pipeline.settle {
+        Settle::FirstVerified => {
+            "taking the candidates in rank order and returning the best-ranked one that verifies (the candidates \
+             are sampled on both threads)"
+        }
+        Settle::Smoothest => "returning the verified plan with the lowest smoothness",
+    };
     let filter = AmSettings::safety_filter();
     let reroute = if pipeline.reroute {
         "robots a sample leaves inside a static obstacle rerouted around the obstacles (`am::Rerouter`), "
@@ -374,7 +382,7 @@ fn header(f: &HeaderFacts) -> String {
          Methods: **baseline** is the from-scratch AM optimiser (smoothness cost, routed cold start, up to {} \
          restarts sharing an iteration cap of {}); **flowopt** is the learned pipeline ({} flow candidates, {} \
          {:?} steps, {reroute}top {} by primal residual, SF initialiser, safety filter on {} threads {metric} \
-         with the penalty starting at {} and doubling every {} iterations up to {}, cap {}, the verified plan with the lowest smoothness); **flow-no-init** is the same with the safety filter \
+         with the penalty starting at {} and doubling every {} iterations up to {}, cap {}, {settle}); **flow-no-init** is the same with the safety filter \
          started from the flow samples (the paper's ablation). Rows a method cannot plan say why. Success is \
          the dense verdict of `flowopt_planner::metrics` (every separation kept to 1% on 4K instants, box, \
          boundary conditions). Smoothness is the mean over robots of the sum of squared accelerations over \
