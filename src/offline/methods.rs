@@ -353,8 +353,13 @@ impl Planner {
             None => {
                 let (flow, init) = args.weights(dim);
                 let init = init.exists().then_some(init.as_path());
-                let learned = LearnedPlanner::load(&flow, init, args.sf_smoothing)
-                    .with_context(|| format!("loading the learned planner from {}", flow.display()))?;
+                let learned = LearnedPlanner::load(&flow, init, args.sf_smoothing).with_context(|| {
+                    format!(
+                        "loading the learned planner from {} (relative to the working directory: run from the \
+                             repository root or give --flow-weights and --init-weights)",
+                        flow.display()
+                    )
+                })?;
                 self.learned.push((dim, learned));
                 self.learned.len() - 1
             }
