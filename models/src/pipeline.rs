@@ -388,16 +388,20 @@ impl FlowOpt {
         }
         let ranked = Instant::now();
 
-        let mut starts: Vec<AmState> = jobs
-            .iter()
-            .map(|j| AmState {
-                xi: samples[j.query][j.sample].clone(),
-                lambda: vec![0.0; samples[j.query][j.sample].len()],
-            })
-            .collect();
-        if let (Some(init), true) = (&self.init, settings.use_init) {
+        // The SF's starts of the jobs at `ids`: the samples, moved and given
+        // a multiplier by the initialiser (one batch) when it is used.
+        let zero = vec![0.0; references[0].len()];
+        let start_of = |ids: &[usize]| -> Result<Vec<AmState>, ModelError> {
+            let mut starts: Vec<AmState> = ids
+                .iter()
+                .map(|&j| {
+                    let xi = samples[jobs[j].query][jobs[j].sample].clone();
+                    AmState { lambda: vec![0.0; xi.len()], xi }
+                })
+                .collect();
+            let (Some(init), true) = (&self.init, settings.use_init) else { return Ok(starts) };
             let index = |f: &dyn Fn(&Job) -> usize| {
-                Tensor::new(jobs.iter().map(|j| f(j) as u32).collect::<Vec<_>>().as_slice(), &Device::Cpu)
+                Tensor::new(ids.iter().map(|&j| f(&jobs[j]) as u32).collect::<Vec<_>>().as_slice(), &Device::Cpu)
             };
             let sample_ids = index(&|j| j.query * count + j.sample)?;
             let query_ids = index(&|j| j.query)?;
@@ -408,19 +412,30 @@ impl FlowOpt {
             )?;
             let delta = self.stats.token.scale(&out.delta)?.flatten_all()?.to_vec1::<f32>()?;
             let lambda = out.lambda.flatten_all()?.to_vec1::<f32>()?;
-            let zero = vec![0.0; references[0].len()];
-            let per = lambda.len() / jobs.len();
-            for (j, start) in starts.iter_mut().enumerate() {
-                let moved = coding.decode(&zero, &delta[j * width..(j + 1) * width]);
+            let per = lambda.len() / ids.len();
+            for (k, start) in starts.iter_mut().enumerate() {
+                let moved = coding.decode(&zero, &delta[k * width..(k + 1) * width]);
                 for (x, d) in start.xi.iter_mut().zip(moved) {
                     *x += d;
                 }
-                start.lambda = lambda[j * per..(j + 1) * per].iter().map(|&v| f64::from(v)).collect();
+                start.lambda = lambda[k * per..(k + 1) * per].iter().map(|&v| f64::from(v)).collect();
             }
+            Ok(starts)
+        };
+        // Every start now, in one batch; stopping at the first verified
+        // candidate, only those of the first wave (one per thread), the
+        // others when (if) their turn comes.
+        let eager: Vec<usize> = (0..jobs.len())
+            .filter(|&j| settings.settle == Settle::Smoothest || jobs[j].rank < settings.threads.max(1))
+            .collect();
+        let mut ready: Vec<Option<AmState>> = jobs.iter().map(|_| None).collect();
+        for (j, start) in eager.iter().zip(start_of(&eager)?) {
+            ready[*j] = Some(start);
         }
+        let starts = Starts { ready, make: &start_of };
         let initialised = Instant::now();
 
-        let refined = refine(queries, sf, &samples, &jobs, starts, settings, budget)?;
+        let refined = refine(queries, sf, &samples, &jobs, &starts, settings, budget)?;
         let filtered = Instant::now();
 
         let mut per_query: Vec<Vec<Refined>> = queries.iter().map(|_| Vec::new()).collect();
@@ -526,6 +541,26 @@ fn repeat_each(t: &Tensor, count: usize) -> candle_core::Result<Tensor> {
     t.unsqueeze(1)?.broadcast_as(dims)?.contiguous()?.reshape(flat)
 }
 
+/// The safety filter's start of every job: made already, or made by `make`
+/// (from the job indices) when the job's turn comes.
+struct Starts<'a> {
+    ready: Vec<Option<AmState>>,
+    make: &'a MakeStarts<'a>,
+}
+
+/// Makes the starts of the jobs at the given indices.
+type MakeStarts<'a> = dyn Fn(&[usize]) -> Result<Vec<AmState>, ModelError> + Sync + 'a;
+
+impl Starts<'_> {
+    /// Job `j`'s start.
+    fn get(&self, j: usize) -> Result<AmState, ModelError> {
+        match &self.ready[j] {
+            Some(start) => Ok(start.clone()),
+            None => (self.make)(&[j])?.pop().ok_or_else(|| ModelError::Config("no start was made".into())),
+        }
+    }
+}
+
 /// One candidate to refine.
 #[derive(Debug, Clone, Copy)]
 struct Job {
@@ -539,7 +574,8 @@ struct Job {
     rank: usize,
 }
 
-/// Runs the safety filter on every job (grouped by query, in rank order) from its start, on the
+/// Runs the safety filter on every job (grouped by query, in rank order;
+/// a job's start made when its turn comes if it was not yet), on the
 /// settings' threads; returns `(query, refined)` in job order. With
 /// [`Settle::FirstVerified`] a query's jobs ranked below its best verified
 /// one so far are cancelled (running) or skipped (not started).
@@ -548,7 +584,7 @@ fn refine(
     sf: &Engine,
     samples: &[Vec<Vec<f64>>],
     jobs: &[Job],
-    starts: Vec<AmState>,
+    starts: &Starts<'_>,
     settings: &PipelineSettings,
     budget: &Budget<'_>,
 ) -> Result<Vec<(usize, Refined)>, ModelError> {
@@ -565,12 +601,12 @@ fn refine(
         let mine = Budget { deadline: budget.deadline, cancelled: Some(&cancelled) };
         let problem = queries[qi].enforced;
         let prepared = sf.prepare(problem, Some(&samples[qi][i]))?;
-        let start = &starts[j];
+        let start = starts.get(j)?;
         let outcome = sf.run_within(&prepared, start.clone(), &mine);
         if outcome.stop == Stop::Verified {
             settled[qi].fetch_min(rank, Ordering::AcqRel);
         }
         let smoothness = JointPlan::new(&problem.team, outcome.state.xi.clone()).smoothness(problem.team.samples);
-        Ok(Some((qi, Refined { rank, sample_primal: primal, prepared, start: start.clone(), outcome, smoothness })))
+        Ok(Some((qi, Refined { rank, sample_primal: primal, prepared, start, outcome, smoothness })))
     })
 }
