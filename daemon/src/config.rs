@@ -306,24 +306,31 @@ mod tests {
         workspace = { min = [-1.0, -1.0], max = [1.0, 1.0] }
     "#;
 
-    #[test]
-    fn the_shipped_default_config_loads() {
-        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/default.toml");
-        let config = DaemonConfig::load(&path).unwrap();
-        assert_eq!(config.ipc.prefix, "flowopt");
-        let team = config.teams[0].team().unwrap();
-        assert_eq!((team.robots, team.dim), (16, Dim::Two));
-        // The learned planner's weights, relative to the file, are found
-        // whatever the working directory.
-        let learned = config.teams[0].learned.as_ref().expect("the default races the learned planner");
+    /// The shipped configuration `name` (in the repository's `config/`).
+    fn shipped(name: &str) -> DaemonConfig {
+        DaemonConfig::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("../config").join(name)).unwrap()
+    }
+
+    /// The learned planner's weights of `team`, relative to its file, are
+    /// found whatever the working directory.
+    fn assert_weights_found(team: &TeamConfig) {
+        let learned = team.learned.as_ref().expect("the team races the learned planner");
         assert!(learned.flow.is_file(), "{}", learned.flow.display());
         assert!(learned.init.as_ref().is_some_and(|p| p.is_file()));
     }
 
     #[test]
+    fn the_shipped_default_config_loads() {
+        let config = shipped("default.toml");
+        assert_eq!(config.ipc.prefix, "flowopt");
+        let team = config.teams[0].team().unwrap();
+        assert_eq!((team.robots, team.dim), (16, Dim::Two));
+        assert_weights_found(&config.teams[0]);
+    }
+
+    #[test]
     fn the_shipped_big_team_config_loads() {
-        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/team64.toml");
-        let config = DaemonConfig::load(&path).unwrap();
+        let config = shipped("team64.toml");
         let team = config.teams[0].team().unwrap();
         assert_eq!((team.robots, team.dim), (64, Dim::Two));
         assert!(config.teams[0].learned.is_none());
@@ -331,13 +338,10 @@ mod tests {
 
     #[test]
     fn the_shipped_3d_config_loads_with_3d_weights() {
-        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/team3d.toml");
-        let config = DaemonConfig::load(&path).unwrap();
+        let config = shipped("team3d.toml");
         let team = config.teams[0].team().unwrap();
         assert_eq!((team.robots, team.dim), (16, Dim::Three));
-        let learned = config.teams[0].learned.as_ref().expect("3D teams race the learned planner");
-        assert!(learned.flow.is_file(), "{}", learned.flow.display());
-        assert!(learned.init.as_ref().is_some_and(|p| p.is_file()));
+        assert_weights_found(&config.teams[0]);
     }
 
     #[test]

@@ -678,12 +678,15 @@ mod tests {
         assert!(m.min_robot_scaled >= 1.0 && m.workspace_excess <= 0.0, "{m:?}");
     }
 
-    #[test]
-    fn the_default_config_preloads_the_shipped_weights_and_plans_cold() {
+    /// The first team of the shipped configuration `file` (under the
+    /// repository root), renamed `name` with a long deadline: preloads with
+    /// the learned planner racing the optimiser and plans a random problem
+    /// cold, verified. Returns the team's configuration.
+    fn shipped_team_plans_cold(file: &str, name: &str) -> TeamConfig {
         let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
-        let config = crate::config::DaemonConfig::load(&root.join("config/default.toml")).unwrap();
+        let config = crate::config::DaemonConfig::load(&root.join(file)).unwrap();
         let mut team = config.teams[0].clone();
-        team.name = "t".into();
+        team.name = name.into();
         team.deadline_ms = 10_000.0;
         let mut planner = TeamPlanner::preload(&team).unwrap();
         assert_eq!(planner.cold.methods(), 2, "the learned pipeline races the optimiser");
@@ -691,6 +694,12 @@ mod tests {
         let a = answer(&mut planner, &problem, 1_000_000_000, Instant::now());
         assert_eq!((a.follow, a.why, a.warm), (Follow::New, Why::None, false));
         assert_verified_from(&planner, &problem);
+        team
+    }
+
+    #[test]
+    fn the_default_config_preloads_the_shipped_weights_and_plans_cold() {
+        let team = shipped_team_plans_cold("config/default.toml", "t");
         // Weights for another dimension are refused at preload.
         let mut three = team.clone();
         three.dim = Dim::Three;
@@ -701,17 +710,7 @@ mod tests {
 
     #[test]
     fn the_3d_config_preloads_the_3d_weights_and_plans_cold() {
-        let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
-        let config = crate::config::DaemonConfig::load(&root.join("config/team3d.toml")).unwrap();
-        let mut team = config.teams[0].clone();
-        team.name = "t3".into();
-        team.deadline_ms = 10_000.0;
-        let mut planner = TeamPlanner::preload(&team).unwrap();
-        assert_eq!(planner.cold.methods(), 2, "the learned pipeline races the optimiser");
-        let problem = RandomScenario::new(planner.team().clone()).generate(11).unwrap();
-        let a = answer(&mut planner, &problem, 1_000_000_000, Instant::now());
-        assert_eq!((a.follow, a.why, a.warm), (Follow::New, Why::None, false));
-        assert_verified_from(&planner, &problem);
+        shipped_team_plans_cold("config/team3d.toml", "t3");
     }
 
     #[test]

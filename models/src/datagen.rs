@@ -50,14 +50,7 @@ pub fn generate(
     }
     let mut shards = Vec::new();
     for &robots in &config.robots {
-        // One bucket per random obstacle count, or the one count of the
-        // obstacles a family places itself.
-        let counts = if config.family.takes_random_obstacles() {
-            (0..=config.max_obstacles).collect::<Vec<_>>()
-        } else {
-            vec![config.problem(robots, 0, config.seed(robots, 0, 0))?.obstacles.len()]
-        };
-        for obstacles in counts {
+        for obstacles in config.obstacle_counts(robots)? {
             // The family's workspace for this team (its first instance's;
             // an instance in another one gets an engine of its own).
             let team = config.problem(robots, obstacles, config.seed(robots, obstacles, 0))?.team;

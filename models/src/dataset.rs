@@ -82,6 +82,17 @@ impl DatagenConfig {
         Ok(scene.generate()?.0)
     }
 
+    /// The obstacle counts of `robots`-robot teams, one bucket each:
+    /// `0..=max_obstacles` for the families that take random obstacles, else
+    /// the one count the family places itself (its first instance's).
+    pub fn obstacle_counts(&self, robots: usize) -> Result<Vec<usize>, ModelError> {
+        Ok(if self.family.takes_random_obstacles() {
+            (0..=self.max_obstacles).collect()
+        } else {
+            vec![self.problem(robots, 0, self.seed(robots, 0, 0))?.obstacles.len()]
+        })
+    }
+
     /// Shards per bucket.
     pub fn shards_per_bucket(&self) -> usize {
         self.per_bucket.div_ceil(self.shard_size.max(1))

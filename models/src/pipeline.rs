@@ -283,7 +283,7 @@ impl FlowOpt {
             }
             let rows_of = |x: &Tensor| x.narrow(0, first, len);
             let part = Encoded {
-                robots: if encoded.robots.dim(0)? == 1 { encoded.robots.clone() } else { rows_of(&encoded.robots)? },
+                robots: if p == 1 { encoded.robots.clone() } else { rows_of(&encoded.robots)? },
                 obstacles: encoded.obstacles.as_ref().map(rows_of).transpose()?,
             };
             let sampled = self

@@ -59,8 +59,11 @@ pub fn run(args: DatagenArgs) -> Result<()> {
         shard_size: args.shard_size,
         first_seed: args.first_seed,
     };
-    let buckets = if config.family.takes_random_obstacles() { config.max_obstacles + 1 } else { 1 };
-    let total = config.robots.len() * buckets * config.per_bucket;
+    let mut buckets = 0;
+    for &robots in &config.robots {
+        buckets += config.obstacle_counts(robots).context("placing the family's first scene")?.len();
+    }
+    let total = buckets * config.per_bucket;
     let progress = ProgressBar::new(total as u64);
     progress.set_style(ProgressStyle::with_template("{bar:40} {pos}/{len} instances [{elapsed_precise} eta {eta}]")?);
     let started = Instant::now();
