@@ -193,6 +193,32 @@ impl Team {
         }
     }
 
+    /// Separations the straight crossing of the workspace's diagonal may
+    /// move between two samples before [`Team::resolved_for_workspace`]
+    /// raises the resolution.
+    pub const MOVE_PER_SAMPLE: f64 = 0.75;
+
+    /// This team with its degree and sample count raised for its workspace.
+    /// Unchanged while a robot crossing the workspace's diagonal in a
+    /// straight line moves at most [`Team::MOVE_PER_SAMPLE`] (horizontal)
+    /// separations between two samples; beyond, both grow in proportion to
+    /// the diagonal: samples so that the chord inflation of fast pairs stays
+    /// small, degree so that a longer path can bend past as many more
+    /// robots. The default 2D team keeps degree 10 and K = 50 up to a box
+    /// of half-width 2.65 m (the crowd of 128 robots at the 16-robot
+    /// benchmark's density gets 11 and 54, of 256 16 and 76).
+    pub fn resolved_for_workspace(self) -> Self {
+        let axes = self.dim.axes();
+        let diagonal = (0..axes).map(|a| (self.workspace.max[a] - self.workspace.min[a]).powi(2)).sum::<f64>().sqrt();
+        let allowed = self.samples as f64 * Self::MOVE_PER_SAMPLE * self.separation().0;
+        let factor = diagonal / allowed;
+        if factor.is_nan() || factor <= 1.0 {
+            return self;
+        }
+        let grow = |x: usize| (x as f64 * factor).ceil() as usize;
+        Self { degree: grow(self.degree), samples: grow(self.samples), ..self }
+    }
+
     /// Centre-to-centre separations `(a, b)` (horizontal, vertical): twice
     /// the robot's radius and half-height.
     pub fn separation(&self) -> (f64, f64) {
@@ -490,6 +516,22 @@ impl Problem {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_resolution_grows_with_the_workspace_past_the_default_crossing() {
+        let team = Team::default_for(Dim::Two, 16);
+        assert_eq!(team.clone().resolved_for_workspace(), team);
+        let at = |half: f64| {
+            let t = Team { workspace: Workspace::centred(half), ..team.clone() }.resolved_for_workspace();
+            let diagonal = 2.0 * half * 2f64.sqrt();
+            assert!(diagonal / t.samples as f64 <= Team::MOVE_PER_SAMPLE * t.separation().0 + 1e-12);
+            (t.degree, t.samples)
+        };
+        assert_eq!(at(2.6), (10, 50));
+        assert_eq!(at(2.0 * 2f64.sqrt()), (11, 54));
+        assert_eq!(at(4.0), (16, 76));
+        assert_eq!(Team::default_for(Dim::Three, 64).resolved_for_workspace().samples, 50);
+    }
 
     fn two_robot_problem() -> Problem {
         let team = Team::default_for(Dim::Two, 2);

@@ -135,7 +135,7 @@ pub fn density_half_width(dim: Dim, robots: usize) -> f64 {
 
 /// The default team of `robots` in a cube of half-width `half`.
 fn team_in(dim: Dim, robots: usize, half: f64) -> Team {
-    Team { workspace: Workspace::centred(half), ..Team::default_for(dim, robots) }
+    Team { workspace: Workspace::centred(half), ..Team::default_for(dim, robots) }.resolved_for_workspace()
 }
 
 /// A 2D or 3D point.

@@ -173,6 +173,8 @@ pub struct Overrides {
     pub all_pairs: bool,
     /// No veering of head-on robots.
     pub no_veer: bool,
+    /// The optimiser's pair checks on one thread at every team size.
+    pub one_thread: bool,
     /// No untimed residual study.
     pub no_study: bool,
 }
@@ -195,6 +197,7 @@ impl Overrides {
         s.chord &= !self.no_chord;
         s.broad_phase &= !self.all_pairs;
         s.veer &= !self.no_veer;
+        s.two_threads &= !self.one_thread;
         s
     }
 }

@@ -50,6 +50,10 @@ pub struct EngineArgs {
     /// Ablation: optimiser cold starts without veering head-on robots.
     #[arg(long)]
     pub no_veer: bool,
+    /// Ablation: the optimiser checks its robot pairs on one thread (by
+    /// default the biggest teams use two).
+    #[arg(long)]
+    pub one_thread: bool,
     /// Skip the untimed residual study (the iterations to 0.01 / 0.001 m
     /// are then not reported): it runs up to 10,000 iterations, which is
     /// most of the time a big team's benchmark takes.
@@ -68,6 +72,7 @@ impl EngineArgs {
             no_chord: self.no_chord,
             all_pairs: self.all_pairs,
             no_veer: self.no_veer,
+            one_thread: self.one_thread,
             no_study: self.no_study,
         }
     }

@@ -9,8 +9,12 @@
 //! violating pair is ever left out, and the pairs are returned in the order
 //! the all-pairs loop visits them, so the iteration is the same number for
 //! number (`tests::the_broad_phase_iteration_equals_the_all_pairs_one`).
-//! The boxes are rebuilt from the iterate's positions at every call, so
-//! the pair set follows the iterate.
+//! The pair set follows the iterate: boxes are built grown by half again
+//! ([`SLACK`]) and kept while every robot's current box (its motion since
+//! the build added) still fits inside its built one, so a kept set is a
+//! superset of the current one; else they are rebuilt. The optimiser's
+//! iterates move little from one iteration to the next, so most
+//! iterations skip the sweep.
 
 /// Teams at least this large use the broad phase; below it all pairs are
 /// checked (sorting costs more than it saves).
@@ -18,6 +22,10 @@ pub(crate) const BROAD_PHASE_MIN_ROBOTS: usize = 24;
 
 /// Instants per time segment.
 const SEGMENT: usize = 7;
+
+/// Boxes are built grown by this fraction more than asked, so that the
+/// pair set can be kept while the iterate moves.
+const SLACK: f64 = 0.5;
 
 /// The broad phase's working memory.
 #[derive(Debug, Clone, Default)]
@@ -31,6 +39,10 @@ pub(crate) struct BroadPhase {
     found: Vec<u64>,
     /// Candidate pairs `(i, j)`, `i < j`, sorted.
     pairs: Vec<(u32, u32)>,
+    /// The positions the pairs were found from (empty before the first).
+    built: Vec<f64>,
+    /// Each robot's growth per axis they were found with.
+    built_grow: Vec<[f64; 3]>,
 }
 
 impl BroadPhase {
@@ -39,6 +51,37 @@ impl BroadPhase {
     /// axis at some instant, sorted. `grow` (`[robot][axis]`, m) is each
     /// robot's share of the pair's reach.
     pub fn candidates(&mut self, pos: &[f64], axes: usize, n: usize, count: usize, grow: &[[f64; 3]]) -> &[(u32, u32)] {
+        if !self.still_covers(pos, axes, n, count, grow) {
+            self.built_grow.clear();
+            self.built_grow.extend(grow.iter().map(|g| g.map(|x| x * (1.0 + SLACK))));
+            self.built.clear();
+            self.built.extend_from_slice(&pos[..axes * n * count]);
+            self.sweep(axes, n, count);
+        }
+        &self.pairs
+    }
+
+    /// Whether the pairs found last still hold every pair whose boxes
+    /// overlap now: each robot moved, along each axis, by at most what its
+    /// built growth has to spare over its growth now.
+    fn still_covers(&self, pos: &[f64], axes: usize, n: usize, count: usize, grow: &[[f64; 3]]) -> bool {
+        if self.built.len() != axes * n * count || self.built_grow.len() != n {
+            return false;
+        }
+        (0..axes).all(|a| {
+            (0..n).all(|i| {
+                let range = (a * n + i) * count..(a * n + i + 1) * count;
+                let moved =
+                    pos[range.clone()].iter().zip(&self.built[range]).fold(0.0, |m: f64, (p, q)| m.max((p - q).abs()));
+                moved + grow[i][a] <= self.built_grow[i][a]
+            })
+        })
+    }
+
+    /// Finds the pairs whose boxes around the built positions, grown by
+    /// the built growth, overlap in some segment.
+    fn sweep(&mut self, axes: usize, n: usize, count: usize) {
+        let (pos, grow) = (&self.built, &self.built_grow);
         let segments = count.div_ceil(SEGMENT).max(1);
         self.boxes.clear();
         self.boxes.resize(segments * n, [[f64::INFINITY, f64::NEG_INFINITY]; 3]);
@@ -86,7 +129,6 @@ impl BroadPhase {
                 bits &= bits - 1;
             }
         }
-        &self.pairs
     }
 }
 
@@ -96,19 +138,47 @@ mod tests {
 
     #[test]
     fn robots_far_apart_in_every_segment_are_no_candidates() {
-        // Three robots on a line, 1 m apart, still; reach 0.3 m.
+        // Three robots on a line, 1 m apart, still; reach 0.3 m (the
+        // growth asked for, built with the slack).
+        let g = |x: f64| [x / (1.0 + SLACK); 3];
         let (n, count) = (3, 10);
         let mut pos = vec![0.0; 2 * n * count];
         for i in 0..n {
             pos[i * count..(i + 1) * count].fill(i as f64);
         }
         let mut broad = BroadPhase::default();
-        assert!(broad.candidates(&pos, 2, n, count, &[[0.15; 3]; 3]).is_empty());
+        assert!(broad.candidates(&pos, 2, n, count, &[g(0.15); 3]).is_empty());
         // Robot 2 passes robot 1 at the last instant only.
         pos[2 * count + count - 1] = 1.1;
-        assert_eq!(broad.candidates(&pos, 2, n, count, &[[0.15; 3]; 3]), &[(1, 2)]);
-        assert_eq!(broad.candidates(&pos, 2, n, count, &[[0.5; 3]; 3]), &[(0, 1), (1, 2)]);
+        assert_eq!(broad.candidates(&pos, 2, n, count, &[g(0.15); 3]), &[(1, 2)]);
+        assert_eq!(broad.candidates(&pos, 2, n, count, &[g(0.5); 3]), &[(0, 1), (1, 2)]);
         // A robot's own share reaches further: robot 0 grown by 0.95 meets 1.
-        assert_eq!(broad.candidates(&pos, 2, n, count, &[[0.95; 3], [0.15; 3], [0.15; 3]]), &[(0, 1), (1, 2)]);
+        assert_eq!(broad.candidates(&pos, 2, n, count, &[g(0.95), g(0.15), g(0.15)]), &[(0, 1), (1, 2)]);
+    }
+
+    #[test]
+    fn the_pairs_are_kept_while_the_robots_stay_within_the_slack_and_found_anew_beyond() {
+        let (n, count) = (3, 10);
+        let mut pos = vec![0.0; 2 * n * count];
+        for i in 0..n {
+            pos[i * count..(i + 1) * count].fill(i as f64);
+        }
+        let grow = [[0.2; 3]; 3];
+        let mut broad = BroadPhase::default();
+        assert!(broad.candidates(&pos, 2, n, count, &grow).is_empty());
+        // Robot 2 moves 0.05 m towards robot 1 (its built growth spares
+        // 0.1): the set found earlier is kept; it holds every pair whose
+        // boxes overlap now, none.
+        pos[2 * count..3 * count].iter_mut().for_each(|x| *x -= 0.05);
+        assert!(broad.candidates(&pos, 2, n, count, &grow).is_empty());
+        assert_eq!(broad.built[2 * count], 2.0);
+        // 0.65 m: beyond the slack, so found anew (robot 2 at 1.35 meets 1).
+        pos[2 * count..3 * count].iter_mut().for_each(|x| *x -= 0.6);
+        assert_eq!(broad.candidates(&pos, 2, n, count, &grow), &[(1, 2)]);
+        assert!((broad.built[2 * count] - 1.35).abs() < 1e-12);
+        // A robot's growth rising past its spare also finds them anew.
+        let wider = [[0.2; 3], [0.2; 3], [0.45; 3]];
+        assert_eq!(broad.candidates(&pos, 2, n, count, &wider), &[(1, 2)]);
+        assert_eq!(broad.built_grow[2][0], 0.45 * (1.0 + SLACK));
     }
 }

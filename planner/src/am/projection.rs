@@ -13,10 +13,24 @@
 //! shrunk by the tolerance, a plan is feasible exactly when no correction is
 //! needed.
 
+use std::sync::mpsc::{Receiver, SyncSender, TryRecvError, sync_channel};
+use std::thread::Scope;
+use std::time::Instant;
+
 use super::pairs::{BROAD_PHASE_MIN_ROBOTS, BroadPhase};
 use crate::basis::bernstein_row;
 use crate::linalg::{Accum, gemm};
 use crate::problem::{Dim, Problem};
+
+/// Teams at least this large check their pairs on two threads when their
+/// limits ask for it (docs/BENCHMARKS.md, "Big teams").
+pub const TWO_THREADS_MIN_ROBOTS: usize = 128;
+
+/// How long a waiting side of the pair helper spins before it blocks: longer
+/// than the rest of an iteration of the biggest teams, so that neither side
+/// sleeps between iterations (waking an idle core costs tens of
+/// microseconds on these hosts).
+const SPIN: std::time::Duration = std::time::Duration::from_millis(2);
 
 /// Squared scaled distance below which two centres count as coincident and
 /// the push direction is chosen deterministically instead of normalised.
@@ -70,6 +84,9 @@ pub struct Limits {
     chord: bool,
     /// Find the robot pairs to check by sweep-and-prune (large teams).
     broad_phase: bool,
+    /// Check the broad phase's pairs on two threads (teams of
+    /// [`TWO_THREADS_MIN_ROBOTS`] or more).
+    two_threads: bool,
 }
 
 impl Limits {
@@ -81,6 +98,12 @@ impl Limits {
     /// Robot-obstacle separations per axis, per obstacle (m).
     pub fn obstacle_separations(&self) -> &[[f64; 3]] {
         &self.obstacle_sep
+    }
+
+    /// Whether the broad phase's pairs of teams of
+    /// [`TWO_THREADS_MIN_ROBOTS`] or more are checked on two threads.
+    pub fn two_threads(&self) -> bool {
+        self.two_threads && self.broad_phase
     }
 
     /// The box positions are clamped into, `(lower, upper)` per axis (m).
@@ -119,19 +142,21 @@ impl Limits {
             tracks,
             chord: false,
             broad_phase: false,
+            two_threads: false,
         }
     }
 
     /// The same limits checked with `chord` inflation (see [`Projection`])
     /// and, for teams of [`BROAD_PHASE_MIN_ROBOTS`] or more, with the
-    /// `broad_phase`.
-    pub(crate) fn with_rules(self, chord: bool, broad_phase: bool) -> Self {
-        Self { chord, broad_phase, ..self }
+    /// `broad_phase`, its pairs on `two_threads` for teams of
+    /// [`TWO_THREADS_MIN_ROBOTS`] or more.
+    pub(crate) fn with_rules(self, chord: bool, broad_phase: bool, two_threads: bool) -> Self {
+        Self { chord, broad_phase, two_threads, ..self }
     }
 }
 
 /// Positions and corrections at a grid: the projection's working memory.
-#[derive(Debug, Clone)]
+#[derive(Debug)]
 pub(crate) struct Projection {
     /// Positions `[axis][robot][count]`.
     pub pos: Vec<f64>,
@@ -146,6 +171,37 @@ pub(crate) struct Projection {
     steps: Vec<f64>,
     /// Each robot's share of the broad phase's reach, per axis (m).
     grow: Vec<[f64; 3]>,
+    /// The thread that checks the second half of the pairs (two threads only).
+    helper: Option<PairHelper>,
+}
+
+/// The main thread's end of a pair helper ([`Projection::with_helper`]).
+#[derive(Debug)]
+struct PairHelper {
+    jobs: SyncSender<Job>,
+    done: Receiver<Job>,
+    /// The job's buffers between iterations.
+    spare: Option<Job>,
+    /// Address of the limits the helper checks against (compared, never read).
+    limits: usize,
+}
+
+/// Half of an iteration's pairs for the helper, with the iterate it
+/// evaluates its own positions from, and its corrections back.
+#[derive(Debug)]
+struct Job {
+    xi: Vec<f64>,
+    pairs: Vec<(u32, u32)>,
+    share: Share,
+    sum: f64,
+}
+
+/// One thread's corrections and working memory for its share of the pairs.
+#[derive(Debug, Clone)]
+struct Share {
+    corr: Vec<f64>,
+    touched: Vec<bool>,
+    scratch: Scratch,
 }
 
 /// Per-instant values of the pair being checked.
@@ -170,7 +226,29 @@ impl Projection {
             broad: BroadPhase::default(),
             steps: Vec::with_capacity(robots),
             grow: Vec::with_capacity(robots),
+            helper: None,
         }
+    }
+
+    /// The same projection checking the second half of the broad phase's
+    /// pairs against `limits` on a helper thread of `scope`, which stays
+    /// awake across iterations (a thread started per iteration costs about
+    /// 70 us here, more than half the pairs of 128 robots take). The helper
+    /// evaluates the iterate itself and ends when the projection is
+    /// dropped. Only runs against `limits` use it.
+    pub fn with_helper<'scope>(
+        mut self,
+        scope: &'scope Scope<'scope, '_>,
+        dim: Dim,
+        robots: usize,
+        grid: &'scope SampleGrid,
+        limits: &'scope Limits,
+    ) -> Self {
+        let (jobs, inbox) = sync_channel(1);
+        let (outbox, done) = sync_channel(1);
+        scope.spawn(move || serve(dim, robots, grid, limits, &inbox, &outbox));
+        self.helper = Some(PairHelper { jobs, done, spare: None, limits: std::ptr::from_ref(limits) as usize });
+        self
     }
 
     /// Evaluates `xi` (`[axis][robot][coef]`) on `grid`, computes every
@@ -186,8 +264,8 @@ impl Projection {
             self.scratch.target.fill(1.0);
         }
         let collisions = match dim {
-            Dim::Two => self.pairs::<2>(robots, count, limits) + self.obstacles::<2>(robots, count, limits),
-            Dim::Three => self.pairs::<3>(robots, count, limits) + self.obstacles::<3>(robots, count, limits),
+            Dim::Two => self.pairs::<2>(robots, count, limits, xi) + self.obstacles::<2>(robots, count, limits),
+            Dim::Three => self.pairs::<3>(robots, count, limits, xi) + self.obstacles::<3>(robots, count, limits),
         };
         let mut box_sq = 0.0;
         for ax in 0..dim.axes() {
@@ -212,11 +290,10 @@ impl Projection {
     /// below its target `t` (1, or more with the chord inflation) the offset
     /// is pushed to it, `c = d (t/r - 1)`, added to `i` and taken from `j`.
     /// Returns the sum of `||c||^2`.
-    fn pairs<const D: usize>(&mut self, n: usize, count: usize, limits: &Limits) -> f64 {
+    fn pairs<const D: usize>(&mut self, n: usize, count: usize, limits: &Limits, xi: &[f64]) -> f64 {
         let sep = limits.robot_sep;
         let inv = sep.map(|s| 1.0 / (s * s));
-        let stride = n * count;
-        let Projection { pos, corr, touched, scratch, broad, steps, grow } = self;
+        let Projection { pos, corr, touched, scratch, broad, steps, grow, helper } = self;
         // A pair's chord inflation is at most sqrt(1 + (s_i + s_j)^2 / 4) <=
         // 1 + (s_i + s_j) / 2 separations, s the robots' largest scaled moves
         // between instants: robot i's share of the reach is (1 + s_i) / 2.
@@ -226,39 +303,47 @@ impl Projection {
             steps.clear();
             steps.resize(n, 0.0);
         }
-        let candidates: Option<&[(u32, u32)]> = (limits.broad_phase && n >= BROAD_PHASE_MIN_ROBOTS).then(|| {
-            grow.clear();
-            grow.extend(steps.iter().map(|s| sep.map(|x| x * 0.5 * (1.0 + s))));
-            broad.candidates(pos, D, n, count, grow)
-        });
-        let all = || (0..n).flat_map(move |i| (i + 1..n).map(move |j| (i as u32, j as u32)));
-        let pairs: Box<dyn Iterator<Item = (u32, u32)>> = match candidates {
-            Some(c) => Box::new(c.iter().copied()),
-            None => Box::new(all()),
-        };
-        let mut sum = 0.0;
-        for (i, j) in pairs {
-            let (i, j) = (i as usize, j as usize);
-            let pi: [&[f64]; D] = std::array::from_fn(|a| &pos[a * stride + i * count..a * stride + (i + 1) * count]);
-            let pj: [&[f64]; D] = std::array::from_fn(|a| &pos[a * stride + j * count..a * stride + (j + 1) * count]);
-            let bound = limits.chord.then(|| 1.0 + 0.25 * (steps[i] + steps[j]).powi(2));
-            if !scratch.violated::<D>(&pi, &pj, &inv, bound) {
-                continue;
-            }
-            touched[i] = true;
-            touched[j] = true;
-            for k in 0..count {
-                let Some(c) = push::<D>(&pi, &pj, k, &inv, &sep, scratch.target[k], (i, j)) else {
-                    continue;
-                };
-                for a in 0..D {
-                    corr[a * stride + i * count + k] += c[a];
-                    corr[a * stride + j * count + k] -= c[a];
-                    sum += c[a] * c[a];
-                }
-            }
+        let check = Check { pos, steps, n, count, limits, inv };
+        if !(limits.broad_phase && n >= BROAD_PHASE_MIN_ROBOTS) {
+            let all = (0..n as u32).flat_map(move |i| (i + 1..n as u32).map(move |j| (i, j)));
+            return check.push::<D>(all, scratch, corr, touched);
         }
-        sum
+        grow.clear();
+        grow.extend(steps.iter().map(|s| sep.map(|x| x * 0.5 * (1.0 + s))));
+        let candidates = broad.candidates(pos, D, n, count, grow);
+        let Some(link) = helper.as_mut().filter(|h| h.limits == std::ptr::from_ref(limits) as usize) else {
+            return check.push::<D>(candidates.iter().copied(), scratch, corr, touched);
+        };
+        // The second half of the pairs on the helper, into its own
+        // corrections, added after: the same iteration up to rounding.
+        let (first, second) = candidates.split_at(candidates.len() / 2);
+        let mut job = link.spare.take().unwrap_or_else(|| Job {
+            xi: Vec::new(),
+            pairs: Vec::new(),
+            share: Share { corr: vec![0.0; corr.len()], touched: vec![false; n], scratch: scratch.clone() },
+            sum: 0.0,
+        });
+        job.xi.clear();
+        job.xi.extend_from_slice(xi);
+        job.pairs.clear();
+        job.pairs.extend_from_slice(second);
+        let sent = link.jobs.send(job).is_ok();
+        let mine = check.push::<D>(first.iter().copied(), scratch, corr, touched);
+        let Some(job) = sent.then(|| receive(&link.done)).flatten() else {
+            // The helper is gone (it panicked; the scope reports it): this
+            // thread checks its half too, and the rest of the run alone.
+            *helper = None;
+            return mine + check.push::<D>(second.iter().copied(), scratch, corr, touched);
+        };
+        for (c, t) in corr.iter_mut().zip(&job.share.corr) {
+            *c += t;
+        }
+        for (t, u) in touched.iter_mut().zip(&job.share.touched) {
+            *t |= u;
+        }
+        let theirs = job.sum;
+        link.spare = Some(job);
+        mine + theirs
     }
 
     /// Robot-obstacle corrections: where robot `i` is inside the (scaled)
@@ -361,6 +446,107 @@ impl Scratch {
             any |= scaled(k) < *t;
         }
         any
+    }
+}
+
+/// The helper's loop: each job's positions from its iterate, then its pairs'
+/// corrections, until the projection hangs up.
+fn serve(dim: Dim, n: usize, grid: &SampleGrid, limits: &Limits, jobs: &Receiver<Job>, done: &SyncSender<Job>) {
+    let count = grid.count();
+    let (rows, n_xi) = (dim.axes() * n, grid.pt.len() / count);
+    let inv = limits.robot_sep.map(|s| 1.0 / (s * s));
+    let (mut pos, mut steps) = (vec![0.0; rows * count], Vec::with_capacity(n));
+    while let Some(mut job) = receive(jobs) {
+        gemm(&mut pos, &job.xi, &grid.pt, rows, n_xi, count, Accum::Replace);
+        if limits.chord {
+            robot_steps(&pos, dim.axes(), n, count, &inv, &mut steps);
+        } else {
+            steps.clear();
+            steps.resize(n, 0.0);
+        }
+        let check = Check { pos: &pos, steps: &steps, n, count, limits, inv };
+        let Share { corr, touched, scratch } = &mut job.share;
+        corr.fill(0.0);
+        touched.fill(false);
+        if !limits.chord {
+            scratch.target.fill(1.0);
+        }
+        let pairs = job.pairs.iter().copied();
+        job.sum = match dim {
+            Dim::Two => check.push::<2>(pairs, scratch, corr, touched),
+            Dim::Three => check.push::<3>(pairs, scratch, corr, touched),
+        };
+        if done.send(job).is_err() {
+            return;
+        }
+    }
+}
+
+/// The next message, spinning for up to [`SPIN`] before blocking; `None`
+/// once the other side hung up.
+fn receive<T>(from: &Receiver<T>) -> Option<T> {
+    let started = Instant::now();
+    loop {
+        for _ in 0..64 {
+            match from.try_recv() {
+                Ok(message) => return Some(message),
+                Err(TryRecvError::Disconnected) => return None,
+                Err(TryRecvError::Empty) => std::hint::spin_loop(),
+            }
+        }
+        if started.elapsed() > SPIN {
+            return from.recv().ok();
+        }
+    }
+}
+
+/// What one thread's pair checks read: the positions, the robots' largest
+/// moves between instants and the limits.
+#[derive(Clone, Copy)]
+struct Check<'a> {
+    pos: &'a [f64],
+    steps: &'a [f64],
+    n: usize,
+    count: usize,
+    limits: &'a Limits,
+    inv: [f64; 3],
+}
+
+impl Check<'_> {
+    /// Pushes apart every violating pair of `pairs` (`i < j`, in order),
+    /// adding to `corr` and marking `touched`; returns the sum of `||c||^2`.
+    fn push<const D: usize>(
+        &self,
+        pairs: impl Iterator<Item = (u32, u32)>,
+        scratch: &mut Scratch,
+        corr: &mut [f64],
+        touched: &mut [bool],
+    ) -> f64 {
+        let (pos, count, inv, sep) = (self.pos, self.count, &self.inv, &self.limits.robot_sep);
+        let stride = self.n * count;
+        let mut sum = 0.0;
+        for (i, j) in pairs {
+            let (i, j) = (i as usize, j as usize);
+            let pi: [&[f64]; D] = std::array::from_fn(|a| &pos[a * stride + i * count..a * stride + (i + 1) * count]);
+            let pj: [&[f64]; D] = std::array::from_fn(|a| &pos[a * stride + j * count..a * stride + (j + 1) * count]);
+            let bound = self.limits.chord.then(|| 1.0 + 0.25 * (self.steps[i] + self.steps[j]).powi(2));
+            if !scratch.violated::<D>(&pi, &pj, inv, bound) {
+                continue;
+            }
+            touched[i] = true;
+            touched[j] = true;
+            for k in 0..count {
+                let Some(c) = push::<D>(&pi, &pj, k, inv, sep, scratch.target[k], (i, j)) else {
+                    continue;
+                };
+                for a in 0..D {
+                    corr[a * stride + i * count + k] += c[a];
+                    corr[a * stride + j * count + k] -= c[a];
+                    sum += c[a] * c[a];
+                }
+            }
+        }
+        sum
     }
 }
 
@@ -572,7 +758,7 @@ mod tests {
         let plain = Limits::new(&problem, &grid, 1.0, [0.0; 3]);
         let mut p = Projection::new(Dim::Two, 2, &grid);
         assert_eq!(p.run(Dim::Two, 2, &grid, &plain, &xi), 0.0, "clear at every instant");
-        let chord = plain.clone().with_rules(true, false);
+        let chord = plain.clone().with_rules(true, false, false);
         let primal = p.run(Dim::Two, 2, &grid, &chord, &xi);
         assert!(primal > 0.0, "the chords between the instants dip through the separation");
         // The middle instant is pushed to sqrt(1 + L^2/4) separations, L =
@@ -581,20 +767,48 @@ mod tests {
         assert!((corr(&p, 1, 1) - corr(&p, 0, 1) - (target - 0.21)).abs() < 1e-9);
     }
 
+    /// `iterations` iterations of the optimiser with `settings` on
+    /// `problem` from its cold start, every residual recorded.
+    fn optimise(problem: &Problem, settings: crate::am::AmSettings, iterations: usize) -> crate::am::AmOutcome {
+        use crate::am::{Engine, Objective};
+        let mut settings = settings.residual_study(-1.0);
+        settings.max_iterations = iterations;
+        let engine = Engine::new(&problem.team, problem.obstacles.len(), Objective::smoothness(), settings).unwrap();
+        let prepared = engine.prepare(problem, None).unwrap();
+        engine.run(&prepared, engine.cold_start(&prepared))
+    }
+
+    #[test]
+    fn the_two_thread_iteration_equals_the_one_thread_one_up_to_rounding() {
+        use crate::am::AmSettings;
+        use crate::scenario::RandomScenario;
+        let team = Team {
+            workspace: crate::problem::Workspace::centred(crate::scenes::density_half_width(
+                Dim::Two,
+                TWO_THREADS_MIN_ROBOTS,
+            )),
+            ..Team::default_for(Dim::Two, TWO_THREADS_MIN_ROBOTS)
+        };
+        let problem = RandomScenario::new(team.clone()).generate(3).unwrap();
+        let run = |two_threads| optimise(&problem, AmSettings { two_threads, ..AmSettings::optimiser() }, 40);
+        let (two, one) = (run(true), run(false));
+        assert!(one.history.iter().all(|r| r.primal > 0.0), "the pairs are exercised");
+        let close = |a: &[f64], b: &[f64]| a.iter().zip(b).all(|(x, y)| (x - y).abs() <= 1e-9 * (1.0 + y.abs()));
+        assert!(close(&two.state.xi, &one.state.xi) && close(&two.state.lambda, &one.state.lambda));
+        let primal = |h: &[crate::am::Residuals]| h.iter().map(|r| r.primal).collect::<Vec<f64>>();
+        assert!(close(&primal(&two.history), &primal(&one.history)));
+        // The split is fixed, so two threads repeat themselves exactly.
+        assert_eq!(two.state, run(true).state);
+    }
+
     #[test]
     fn the_broad_phase_iteration_equals_the_all_pairs_one() {
-        use crate::am::{AmSettings, Engine, Objective};
+        use crate::am::AmSettings;
         use crate::scenario::RandomScenario;
         let team = Team { workspace: crate::problem::Workspace::centred(1.6), ..Team::default_for(Dim::Two, 40) };
         for seed in 0..3 {
             let problem = RandomScenario::new(team.clone()).with_obstacles(2).generate(seed).unwrap();
-            let run = |broad_phase| {
-                let mut settings = AmSettings { broad_phase, ..AmSettings::optimiser().residual_study(-1.0) };
-                settings.max_iterations = 60;
-                let engine = Engine::new(&team, 2, Objective::smoothness(), settings).unwrap();
-                let prepared = engine.prepare(&problem, None).unwrap();
-                engine.run(&prepared, engine.cold_start(&prepared))
-            };
+            let run = |broad_phase| optimise(&problem, AmSettings { broad_phase, ..AmSettings::optimiser() }, 60);
             let (broad, all) = (run(true), run(false));
             assert!(all.history.iter().any(|r| r.primal > 0.0), "the pairs are exercised");
             assert_eq!(broad.state, all.state, "seed {seed}");

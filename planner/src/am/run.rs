@@ -6,13 +6,18 @@ use std::time::Instant;
 
 use super::engine::{AmOutcome, AmState, Engine, EngineError, Residuals};
 use super::prepare::Prepared;
-use super::projection::{Projection, SampleGrid};
+use super::projection::{Projection, SampleGrid, TWO_THREADS_MIN_ROBOTS};
 use super::settings::Stop;
 use crate::problem::Problem;
 
 /// Iterations between two budget checks (a clock read costs about as
 /// much as a tenth of a small team's iteration).
 const DEADLINE_CHECK_EVERY: usize = 4;
+
+/// The fewest iterations per robot an attempt of a restarted solve gets:
+/// the crowd of 256 robots, seed 26, verifies after 5,680 iterations in one
+/// attempt and in none of four attempts of 2,500 (docs/BENCHMARKS.md).
+pub const ATTEMPT_ITERATIONS_PER_ROBOT: usize = 25;
 
 /// When a run must stop before its own stopping rules: a deadline
 /// ([`Stop::Deadline`]), a cancellation ([`Stop::Cancelled`]), both or
@@ -80,7 +85,7 @@ impl Engine {
     /// [`Self::solve_prepared`] that also stops ([`Stop::Deadline`],
     /// [`Stop::Cancelled`]) with the current iterate once `budget` is spent.
     pub fn solve_prepared_within(&self, prepared: &Prepared, budget: &Budget<'_>) -> AmOutcome {
-        let attempts = self.settings.restarts + 1;
+        let attempts = self.attempts();
         let share = self.settings.max_iterations / attempts;
         let mut iterations = 0;
         let mut history = Vec::new();
@@ -114,6 +119,17 @@ impl Engine {
         outcome
     }
 
+    /// Attempts of a restarted solve: [`AmSettings::restarts`] + 1, fewer
+    /// where the iteration cap cannot give each
+    /// [`ATTEMPT_ITERATIONS_PER_ROBOT`] iterations per robot (big teams fail
+    /// by being cut short, not by being stuck), at least one.
+    ///
+    /// [`AmSettings::restarts`]: super::AmSettings::restarts
+    pub fn attempts(&self) -> usize {
+        let affordable = self.settings.max_iterations / (ATTEMPT_ITERATIONS_PER_ROBOT * self.team.robots.max(1));
+        (self.settings.restarts + 1).min(affordable.max(1))
+    }
+
     /// Runs the safety filter on `sample` from `init` (the sample itself and a
     /// zero multiplier when `None`).
     pub fn filter(&self, problem: &Problem, sample: &[f64], init: Option<AmState>) -> Result<AmOutcome, EngineError> {
@@ -139,10 +155,28 @@ impl Engine {
         self.run_capped(prepared, state, self.settings.max_iterations, budget)
     }
 
-    fn run_capped(&self, prepared: &Prepared, mut state: AmState, cap: usize, budget: &Budget<'_>) -> AmOutcome {
-        let dim = self.team.dim;
-        let n = self.team.robots;
-        let mut projection = Projection::new(dim, n, &self.grid);
+    fn run_capped(&self, prepared: &Prepared, state: AmState, cap: usize, budget: &Budget<'_>) -> AmOutcome {
+        let (dim, n) = (self.team.dim, self.team.robots);
+        let projection = Projection::new(dim, n, &self.grid);
+        if !(prepared.constraint.two_threads() && n >= TWO_THREADS_MIN_ROBOTS) {
+            return self.iterate(prepared, state, cap, budget, projection);
+        }
+        std::thread::scope(|scope| {
+            let projection = projection.with_helper(scope, dim, n, &self.grid, &prepared.constraint);
+            self.iterate(prepared, state, cap, budget, projection)
+        })
+    }
+
+    /// The iterations of [`Self::run_capped`] with `projection`.
+    fn iterate(
+        &self,
+        prepared: &Prepared,
+        mut state: AmState,
+        cap: usize,
+        budget: &Budget<'_>,
+        mut projection: Projection,
+    ) -> AmOutcome {
+        let (dim, n) = (self.team.dim, self.team.robots);
         let mut work = self.work();
         let mut history = Vec::new();
         let mut iterations = 0;
@@ -213,6 +247,14 @@ mod tests {
     use crate::problem::{Dim, Team};
     use crate::reference::SmoothReference;
     use crate::scenario::RandomScenario;
+
+    #[test]
+    fn big_teams_restart_less_so_that_each_attempt_gets_its_iterations_per_robot() {
+        let attempts = |robots| optimiser(&Team::default_for(Dim::Two, robots), 0).attempts();
+        // The default cap of 10,000 gives four attempts up to 100 robots.
+        assert_eq!([attempts(16), attempts(64), attempts(100)], [4, 4, 4]);
+        assert_eq!([attempts(128), attempts(256), attempts(1000)], [3, 1, 1]);
+    }
 
     fn optimiser(team: &Team, obstacles: usize) -> Engine {
         Engine::new(team, obstacles, Objective::smoothness(), AmSettings::optimiser()).unwrap()

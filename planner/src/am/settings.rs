@@ -76,7 +76,8 @@ pub struct AmSettings {
     /// Only verify once the primal residual is at or below this (m).
     pub verify_below: f64,
     /// Optimiser only: further attempts from perturbed cold starts when an
-    /// attempt hits its share of the iteration cap.
+    /// attempt hits its share of the iteration cap (fewer for big teams:
+    /// `Engine::attempts`).
     pub restarts: usize,
     /// Optimiser only: start a robot whose straight segment crosses a static
     /// obstacle from a route around the obstacles ([`crate::route`]) instead
@@ -111,6 +112,11 @@ pub struct AmSettings {
     /// of symmetric scenes such as antipodal swaps).
     #[serde(default)]
     pub veer: bool,
+    /// Optimiser only: teams of [`super::TWO_THREADS_MIN_ROBOTS`] robots or
+    /// more check half the broad phase's pairs on a helper thread that lives
+    /// for the run: the same iteration up to rounding.
+    #[serde(default)]
+    pub two_threads: bool,
 }
 
 impl AmSettings {
@@ -137,6 +143,7 @@ impl AmSettings {
             chord: true,
             broad_phase: true,
             veer: true,
+            two_threads: true,
         }
     }
 
@@ -162,6 +169,7 @@ impl AmSettings {
             chord: true,
             broad_phase: true,
             veer: false,
+            two_threads: false,
         }
     }
 

@@ -94,6 +94,30 @@ fn set_curve(xi: &mut [f64], curve: &[f64], n: usize, nx: usize, i: usize) {
     }
 }
 
+/// The veering detour's coefficients at `degree`, up to scale: 0 with its
+/// velocity and acceleration at both ends. The bump of the default degree
+/// (its interior coefficients lifted together, each by 1), raised exactly
+/// to higher degrees, so that a team planned at a finer resolution
+/// ([`crate::problem::Team::resolved_for_workspace`]) veers along the same
+/// curve.
+fn veer_bump(degree: usize) -> Vec<f64> {
+    let base = degree.min(crate::problem::Team::DEFAULT_DEGREE);
+    let interior = BOUNDARY_ROWS / 2..base + 1 - BOUNDARY_ROWS / 2;
+    let mut bump: Vec<f64> = (0..=base).map(|c| if interior.contains(&c) { 1.0 } else { 0.0 }).collect();
+    // Degree elevation p -> p + 1: c'_k = k/(p+1) c_{k-1} + (1 - k/(p+1)) c_k.
+    for p in base..degree {
+        let q = (p + 1) as f64;
+        bump = (0..=p + 1)
+            .map(|k| {
+                let before = if k > 0 { bump[k - 1] } else { 0.0 };
+                let here = bump.get(k).copied().unwrap_or(0.0);
+                k as f64 / q * before + (1.0 - k as f64 / q) * here
+            })
+            .collect();
+    }
+    bump
+}
+
 impl Engine {
     /// The optimiser's cold start: per robot the smoothest curve meeting the
     /// boundary conditions, or, with `routed_start`, a fitted route around the
@@ -155,10 +179,10 @@ impl Engine {
         if meets.iter().all(|&m| m == 0) {
             return;
         }
-        // The bump: the interior coefficients, whose curve lifts the middle.
-        let interior = BOUNDARY_ROWS / 2..nx - BOUNDARY_ROWS / 2;
+        // The bump, scaled to lift the middle of the horizon by 1.
+        let bump = veer_bump(nx - 1);
         let middle = crate::basis::bernstein_row(nx - 1, 0, 0.5);
-        let lift: f64 = interior.clone().map(|c| middle[c]).sum();
+        let lift: f64 = middle.iter().zip(&bump).map(|(m, c)| m * c).sum();
         for i in (0..n).filter(|&i| meets[i] > 0) {
             let m = moves[i];
             let flat = Vector3::new(m.x, m.y, 0.0);
@@ -167,8 +191,8 @@ impl Engine {
             let amplitude = ring.max(a).min(VEER * m.norm());
             for ax in 0..dim.axes() {
                 let row = &mut xi[(ax * n + i) * nx..(ax * n + i + 1) * nx];
-                for c in interior.clone() {
-                    row[c] += amplitude * left[ax] / lift;
+                for (x, c) in row.iter_mut().zip(&bump) {
+                    *x += amplitude * left[ax] * c / lift;
                 }
             }
         }
@@ -240,8 +264,31 @@ mod tests {
     use super::*;
     use crate::am::{AmSettings, Objective};
     use crate::metrics::Metrics;
+
     use crate::problem::{Dim, Team};
 
+    #[test]
+    fn the_veering_bump_is_one_curve_at_every_degree() {
+        let at = |c: &[f64], tau: f64| -> f64 {
+            crate::basis::bernstein_row(c.len() - 1, 0, tau).iter().zip(c).map(|(b, x)| b * x).sum()
+        };
+        let lifted = |c: Vec<f64>| {
+            let lift = at(&c, 0.5);
+            c.into_iter().map(|x| x / lift).collect::<Vec<f64>>()
+        };
+        let base = lifted(veer_bump(10));
+        for degree in [12, 16, 23] {
+            let bump = lifted(veer_bump(degree));
+            assert_eq!(bump.len(), degree + 1);
+            // Rest at both ends: position, velocity and acceleration 0.
+            assert!(bump[..3].iter().chain(&bump[degree - 2..]).all(|&c| c.abs() < 1e-15), "{bump:?}");
+            for k in 0..=20 {
+                let tau = k as f64 / 20.0;
+                assert!((at(&bump, tau) - at(&base, tau)).abs() < 1e-12, "degree {degree} at {tau}");
+            }
+        }
+        assert_eq!(veer_bump(10), [0.0, 0.0, 0.0, 1.0, 1.0, 1.0, 1.0, 1.0, 0.0, 0.0, 0.0]);
+    }
     #[test]
     fn the_rerouter_moves_only_robots_that_cross_a_static_obstacle() {
         use crate::problem::{Obstacle, Spheroid, StartState};

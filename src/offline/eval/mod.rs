@@ -380,13 +380,16 @@ fn header(f: &HeaderFacts) -> String {
          at most as many per row, counts shown; training data uses seeds from 10^9), planned one at a time in one process, \
          wall-clock times per instance.\n\n\
          Methods: **baseline** is the from-scratch AM optimiser (smoothness cost, routed cold start, up to {} \
-         restarts sharing an iteration cap of {}); **flowopt** is the learned pipeline ({} flow candidates, {} \
+         restarts sharing an iteration cap of {}, fewer where that leaves an attempt under {} iterations per robot; \
+         its robot pairs on two threads from {} robots); **flowopt** is the learned pipeline ({} flow candidates, {} \
          {:?} steps, {reroute}top {} by primal residual, SF initialiser, safety filter on {} threads {metric} \
          with the penalty starting at {} and doubling every {} iterations up to {}, cap {}, {settle}); **flow-no-init** is the same with the safety filter \
          started from the flow samples (the paper's ablation). Rows a method cannot plan say why. Success is \
          the dense verdict of `flowopt_planner::metrics` (every separation kept to 1% on 4K instants, box, \
          boundary conditions). Smoothness is the mean over robots of the sum of squared accelerations over \
-         the K = 50 samples (m^2/s^4); min clearance is the smallest surface gap between two robots or a \
+         the team's K samples (m^2/s^4; K = 50, raised with the degree for workspaces over 7.5 m across, \
+         `Team::resolved_for_workspace`: 54 for the crowd of 128 robots, 76 for 256, so their smoothness \
+         sums more samples); min clearance is the smallest surface gap between two robots or a \
          robot and an obstacle (m).\n\n",
         f.command,
         machine(),
@@ -397,6 +400,8 @@ fn header(f: &HeaderFacts) -> String {
         f.problems,
         optimiser.restarts,
         optimiser.max_iterations,
+        flowopt_planner::am::ATTEMPT_ITERATIONS_PER_ROBOT,
+        flowopt_planner::am::TWO_THREADS_MIN_ROBOTS,
         pipeline.candidates,
         pipeline.steps,
         pipeline.solver,
