@@ -27,6 +27,13 @@ const SEGMENT: usize = 7;
 /// pair set can be kept while the iterate moves.
 const SLACK: f64 = 0.5;
 
+/// Teams at least this large keep their pair set within the slack; smaller
+/// ones sweep exact boxes every iteration. Runs of a few iterations (the
+/// daemon's warm plans of 64 robots) screen the slack's extra pairs more
+/// often than they skip a sweep, and the 64-robot demo with kept sets
+/// tracked worse (docs/BENCHMARKS.md, "Big teams").
+pub(crate) const KEEP_MIN_ROBOTS: usize = 128;
+
 /// The broad phase's working memory.
 #[derive(Debug, Clone, Default)]
 pub(crate) struct BroadPhase {
@@ -51,12 +58,17 @@ impl BroadPhase {
     /// axis at some instant, sorted. `grow` (`[robot][axis]`, m) is each
     /// robot's share of the pair's reach.
     pub fn candidates(&mut self, pos: &[f64], axes: usize, n: usize, count: usize, grow: &[[f64; 3]]) -> &[(u32, u32)] {
-        if !self.still_covers(pos, axes, n, count, grow) {
-            self.built_grow.clear();
-            self.built_grow.extend(grow.iter().map(|g| g.map(|x| x * (1.0 + SLACK))));
-            self.built.clear();
-            self.built.extend_from_slice(&pos[..axes * n * count]);
-            self.sweep(axes, n, count);
+        if n < KEEP_MIN_ROBOTS {
+            self.sweep(pos, grow, axes, n, count);
+        } else if !self.still_covers(pos, axes, n, count, grow) {
+            let mut built = std::mem::take(&mut self.built);
+            let mut built_grow = std::mem::take(&mut self.built_grow);
+            built.clear();
+            built.extend_from_slice(&pos[..axes * n * count]);
+            built_grow.clear();
+            built_grow.extend(grow.iter().map(|g| g.map(|x| x * (1.0 + SLACK))));
+            self.sweep(&built, &built_grow, axes, n, count);
+            (self.built, self.built_grow) = (built, built_grow);
         }
         &self.pairs
     }
@@ -78,10 +90,9 @@ impl BroadPhase {
         })
     }
 
-    /// Finds the pairs whose boxes around the built positions, grown by
-    /// the built growth, overlap in some segment.
-    fn sweep(&mut self, axes: usize, n: usize, count: usize) {
-        let (pos, grow) = (&self.built, &self.built_grow);
+    /// Finds the pairs whose boxes around `pos`, grown by `grow`, overlap in
+    /// some segment.
+    fn sweep(&mut self, pos: &[f64], grow: &[[f64; 3]], axes: usize, n: usize, count: usize) {
         let segments = count.div_ceil(SEGMENT).max(1);
         self.boxes.clear();
         self.boxes.resize(segments * n, [[f64::INFINITY, f64::NEG_INFINITY]; 3]);
@@ -138,32 +149,31 @@ mod tests {
 
     #[test]
     fn robots_far_apart_in_every_segment_are_no_candidates() {
-        // Three robots on a line, 1 m apart, still; reach 0.3 m (the
-        // growth asked for, built with the slack).
-        let g = |x: f64| [x / (1.0 + SLACK); 3];
+        // Three robots on a line, 1 m apart, still; reach 0.3 m.
         let (n, count) = (3, 10);
         let mut pos = vec![0.0; 2 * n * count];
         for i in 0..n {
             pos[i * count..(i + 1) * count].fill(i as f64);
         }
         let mut broad = BroadPhase::default();
-        assert!(broad.candidates(&pos, 2, n, count, &[g(0.15); 3]).is_empty());
+        assert!(broad.candidates(&pos, 2, n, count, &[[0.15; 3]; 3]).is_empty());
         // Robot 2 passes robot 1 at the last instant only.
         pos[2 * count + count - 1] = 1.1;
-        assert_eq!(broad.candidates(&pos, 2, n, count, &[g(0.15); 3]), &[(1, 2)]);
-        assert_eq!(broad.candidates(&pos, 2, n, count, &[g(0.5); 3]), &[(0, 1), (1, 2)]);
+        assert_eq!(broad.candidates(&pos, 2, n, count, &[[0.15; 3]; 3]), &[(1, 2)]);
+        assert_eq!(broad.candidates(&pos, 2, n, count, &[[0.5; 3]; 3]), &[(0, 1), (1, 2)]);
         // A robot's own share reaches further: robot 0 grown by 0.95 meets 1.
-        assert_eq!(broad.candidates(&pos, 2, n, count, &[g(0.95), g(0.15), g(0.15)]), &[(0, 1), (1, 2)]);
+        assert_eq!(broad.candidates(&pos, 2, n, count, &[[0.95; 3], [0.15; 3], [0.15; 3]]), &[(0, 1), (1, 2)]);
     }
 
     #[test]
-    fn the_pairs_are_kept_while_the_robots_stay_within_the_slack_and_found_anew_beyond() {
-        let (n, count) = (3, 10);
+    fn big_teams_keep_the_pairs_while_the_robots_stay_within_the_slack_and_find_them_anew_beyond() {
+        // A big team on a line, 1 m apart, still.
+        let (n, count) = (KEEP_MIN_ROBOTS, 10);
         let mut pos = vec![0.0; 2 * n * count];
         for i in 0..n {
             pos[i * count..(i + 1) * count].fill(i as f64);
         }
-        let grow = [[0.2; 3]; 3];
+        let grow = vec![[0.2; 3]; n];
         let mut broad = BroadPhase::default();
         assert!(broad.candidates(&pos, 2, n, count, &grow).is_empty());
         // Robot 2 moves 0.05 m towards robot 1 (its built growth spares
@@ -177,8 +187,17 @@ mod tests {
         assert_eq!(broad.candidates(&pos, 2, n, count, &grow), &[(1, 2)]);
         assert!((broad.built[2 * count] - 1.35).abs() < 1e-12);
         // A robot's growth rising past its spare also finds them anew.
-        let wider = [[0.2; 3], [0.2; 3], [0.45; 3]];
+        let mut wider = grow.clone();
+        wider[2] = [0.45; 3];
         assert_eq!(broad.candidates(&pos, 2, n, count, &wider), &[(1, 2)]);
         assert_eq!(broad.built_grow[2][0], 0.45 * (1.0 + SLACK));
+        // A small team sweeps its exact boxes every time and keeps nothing.
+        let mut line = vec![0.0; 2 * 3 * count];
+        for i in 0..3 {
+            line[i * count..(i + 1) * count].fill(i as f64);
+        }
+        let mut small = BroadPhase::default();
+        assert!(small.candidates(&line, 2, 3, count, &grow[..3]).is_empty());
+        assert!(small.built.is_empty());
     }
 }
