@@ -160,8 +160,12 @@ impl Limits {
 pub(crate) struct Projection {
     /// Positions `[axis][robot][count]`.
     pub pos: Vec<f64>,
-    /// Corrections `e - F xi` summed per robot, `[axis][robot][count]`.
+    /// Corrections `e - F xi` summed per robot, `[axis][robot][count]`;
+    /// with a helper, only this thread's (see [`Self::coefficients`]).
     pub corr: Vec<f64>,
+    /// With a helper: all corrections mapped to coefficients, `g = corr P`
+    /// summed over both threads, `[axis][robot][coef]` (empty without).
+    mapped: Vec<f64>,
     /// Robots with any non-zero correction.
     pub touched: Vec<bool>,
     /// One pair's squared targets and moves per instant.
@@ -173,26 +177,51 @@ pub(crate) struct Projection {
     grow: Vec<[f64; 3]>,
     /// The thread that checks the second half of the pairs (two threads only).
     helper: Option<PairHelper>,
+    /// Stop at the first violation with an infinite sum ([`Self::clear`]).
+    first: bool,
 }
 
 /// The main thread's end of a pair helper ([`Projection::with_helper`]).
 #[derive(Debug)]
 struct PairHelper {
+    /// The iterate: the helper evaluates its positions and finds the pairs
+    /// while this thread evaluates its own and clamps them into the box.
     jobs: SyncSender<Job>,
+    /// The first half of the pairs, for this thread.
+    firsts: Receiver<Vec<(u32, u32)>>,
+    /// The job back, with the helper's corrections for the second half.
     done: Receiver<Job>,
     /// The job's buffers between iterations.
     spare: Option<Job>,
+    /// The first half's buffer between iterations.
+    spare_pairs: Vec<(u32, u32)>,
+    /// Where the helper is in the current iteration.
+    stage: Stage,
     /// Address of the limits the helper checks against (compared, never read).
     limits: usize,
 }
 
-/// Half of an iteration's pairs for the helper, with the iterate it
-/// evaluates its own positions from, and its corrections back.
+/// Where a pair helper is in an iteration.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Stage {
+    /// Waiting for an iterate.
+    Idle,
+    /// Evaluating the iterate it was sent and finding its pairs.
+    Evaluating,
+    /// Checking its pairs.
+    Checking,
+}
+
+/// An iteration's iterate for the helper, which evaluates its own positions
+/// from it, finds the pairs, sends the first half back in `pairs` and
+/// checks the second, and its corrections back, mapped to coefficients.
 #[derive(Debug)]
 struct Job {
     xi: Vec<f64>,
     pairs: Vec<(u32, u32)>,
     share: Share,
+    /// `share.corr P`, `[axis][robot][coef]`.
+    mapped: Vec<f64>,
     sum: f64,
 }
 
@@ -221,17 +250,19 @@ impl Projection {
         Self {
             pos: vec![0.0; len],
             corr: vec![0.0; len],
+            mapped: Vec::new(),
             touched: vec![false; robots],
             scratch: Scratch { target: vec![1.0; count], step: vec![0.0; count] },
             broad: BroadPhase::default(),
             steps: Vec::with_capacity(robots),
             grow: Vec::with_capacity(robots),
             helper: None,
+            first: false,
         }
     }
 
-    /// The same projection checking the second half of the broad phase's
-    /// pairs against `limits` on a helper thread of `scope`, which stays
+    /// The same projection with the broad phase, and the second half of its
+    /// pairs, against `limits` on a helper thread of `scope`, which stays
     /// awake across iterations (a thread started per iteration costs about
     /// 70 us here, more than half the pairs of 128 robots take). The helper
     /// evaluates the iterate itself and ends when the projection is
@@ -245,10 +276,49 @@ impl Projection {
         limits: &'scope Limits,
     ) -> Self {
         let (jobs, inbox) = sync_channel(1);
+        let (first_out, firsts) = sync_channel(1);
         let (outbox, done) = sync_channel(1);
-        scope.spawn(move || serve(dim, robots, grid, limits, &inbox, &outbox));
-        self.helper = Some(PairHelper { jobs, done, spare: None, limits: std::ptr::from_ref(limits) as usize });
+        scope.spawn(move || serve(dim, robots, grid, limits, &inbox, &first_out, &outbox));
+        self.helper = Some(PairHelper {
+            jobs,
+            firsts,
+            done,
+            spare: None,
+            spare_pairs: Vec::new(),
+            stage: Stage::Idle,
+            limits: std::ptr::from_ref(limits) as usize,
+        });
         self
+    }
+
+    /// Hands `xi` to the helper if it checks against `limits`, before this
+    /// thread evaluates it: the helper's positions and broad phase overlap
+    /// this thread's positions and box. Without a helper (or once it is
+    /// gone) nothing is sent.
+    fn start_helper(&mut self, robots: usize, limits: &Limits, xi: &[f64]) {
+        let Some(link) = self.helper.as_mut().filter(|h| h.limits == std::ptr::from_ref(limits) as usize) else {
+            return;
+        };
+        let mut job = link.spare.take().unwrap_or_else(|| Job {
+            xi: Vec::new(),
+            pairs: Vec::new(),
+            share: Share {
+                corr: vec![0.0; self.corr.len()],
+                touched: vec![false; robots],
+                scratch: self.scratch.clone(),
+            },
+            mapped: Vec::new(),
+            sum: 0.0,
+        });
+        job.pairs = std::mem::take(&mut link.spare_pairs);
+        job.xi.clear();
+        job.xi.extend_from_slice(xi);
+        link.stage = Stage::Evaluating;
+        if link.jobs.send(job).is_err() {
+            // The helper is gone (it panicked; the scope reports it): this
+            // thread checks every pair for the rest of the run.
+            self.helper = None;
+        }
     }
 
     /// Evaluates `xi` (`[axis][robot][coef]`) on `grid`, computes every
@@ -257,100 +327,131 @@ impl Projection {
         let count = grid.count();
         let n_xi = grid.pt.len() / count;
         let rows = dim.axes() * robots;
+        self.start_helper(robots, limits, xi);
         gemm(&mut self.pos, xi, &grid.pt, rows, n_xi, count, Accum::Replace);
-        self.corr.fill(0.0);
-        self.touched.fill(false);
+        clear_touched(&mut self.corr, &mut self.touched, count);
         if !limits.chord {
             self.scratch.target.fill(1.0);
         }
-        let collisions = match dim {
-            Dim::Two => self.pairs::<2>(robots, count, limits, xi) + self.obstacles::<2>(robots, count, limits),
-            Dim::Three => self.pairs::<3>(robots, count, limits, xi) + self.obstacles::<3>(robots, count, limits),
+        let (pairs, boxed) = match dim {
+            Dim::Two => self.pairs::<2>(robots, count, limits),
+            Dim::Three => self.pairs::<3>(robots, count, limits),
         };
-        let mut box_sq = 0.0;
-        for ax in 0..dim.axes() {
-            let (lo, hi) = (limits.lo[ax], limits.hi[ax]);
-            for i in 0..robots {
-                let range = (ax * robots + i) * count..(ax * robots + i + 1) * count;
-                let mut any = false;
-                for (p, c) in self.pos[range.clone()].iter().zip(&mut self.corr[range]) {
-                    let d = p.clamp(lo, hi) - p;
-                    *c += d;
-                    box_sq += d * d;
-                    any |= d != 0.0;
-                }
-                self.touched[i] |= any;
-            }
+        if self.first && pairs > 0.0 {
+            return pairs;
         }
-        collisions.sqrt() + box_sq.sqrt()
+        let obstacles = match dim {
+            Dim::Two => self.obstacles::<2>(robots, count, limits),
+            Dim::Three => self.obstacles::<3>(robots, count, limits),
+        };
+        let theirs = match dim {
+            Dim::Two => self.collect::<2>(robots, grid, limits),
+            Dim::Three => self.collect::<3>(robots, grid, limits),
+        };
+        let box_sq = boxed
+            .unwrap_or_else(|| clamp_to_box(&self.pos, &mut self.corr, &mut self.touched, limits, dim.axes(), count));
+        (pairs + theirs + obstacles).sqrt() + box_sq.sqrt()
+    }
+
+    /// Whether `xi` needs no correction at all against `limits` (what a zero
+    /// [`Self::run`] means), stopping at the first violating pair or
+    /// obstacle: the dense verification, which fails on most of its calls
+    /// while a run converges.
+    pub fn clear(&mut self, dim: Dim, robots: usize, grid: &SampleGrid, limits: &Limits, xi: &[f64]) -> bool {
+        self.first = true;
+        let residual = self.run(dim, robots, grid, limits, xi);
+        self.first = false;
+        residual == 0.0
+    }
+
+    /// The corrections mapped back to coefficients, `g = corr P`
+    /// (`[axis][robot][coef]`, `rows` rows), into `g`; with a helper, the
+    /// sum both threads mapped.
+    pub fn coefficients(&self, grid: &SampleGrid, rows: usize, g: &mut [f64]) {
+        if self.mapped.len() == g.len() {
+            g.copy_from_slice(&self.mapped);
+        } else {
+            gemm(g, &self.corr, &grid.p, rows, grid.count(), grid.pt.len() / grid.count(), Accum::Replace);
+        }
+    }
+
+    /// With the helper checking pairs: maps this thread's corrections to
+    /// coefficients meanwhile, adds the helper's and returns the helper's
+    /// sum of `||c||^2` (0 without). Should the helper be gone, this thread
+    /// checks its half of the pairs too, and the rest of the run alone.
+    fn collect<const D: usize>(&mut self, n: usize, grid: &SampleGrid, limits: &Limits) -> f64 {
+        self.mapped.clear();
+        let Some(link) = self.helper.as_mut().filter(|h| h.stage == Stage::Checking) else {
+            return 0.0;
+        };
+        link.stage = Stage::Idle;
+        let (count, n_xi) = (grid.count(), grid.pt.len() / grid.count());
+        let mut mapped = std::mem::take(&mut self.mapped);
+        mapped.resize(D * n * n_xi, 0.0);
+        gemm(&mut mapped, &self.corr, &grid.p, D * n, count, n_xi, Accum::Replace);
+        let Some(job) = receive(&link.done) else {
+            // The helper is gone (it panicked; the scope reports it).
+            self.helper = None;
+            let Projection { pos, corr, touched, scratch, broad, steps, grow, .. } = self;
+            let sep = limits.robot_sep;
+            let check = Check { pos, steps, n, count, limits, inv: sep.map(|s| 1.0 / (s * s)), first: false };
+            let pairs = broad.candidates(pos, D, n, count, reach_shares(steps, &sep, grow));
+            return check.push::<D>(pairs[pairs.len() / 2..].iter().copied(), scratch, corr, touched);
+        };
+        for (m, h) in mapped.iter_mut().zip(&job.mapped) {
+            *m += h;
+        }
+        self.mapped = mapped;
+        let theirs = job.sum;
+        link.spare = Some(job);
+        theirs
     }
 
     /// Inter-robot corrections for every pair `i < j` (every candidate of
     /// the broad phase, in the same order): where the scaled distance `r` is
     /// below its target `t` (1, or more with the chord inflation) the offset
     /// is pushed to it, `c = d (t/r - 1)`, added to `i` and taken from `j`.
-    /// Returns the sum of `||c||^2`.
-    fn pairs<const D: usize>(&mut self, n: usize, count: usize, limits: &Limits, xi: &[f64]) -> f64 {
+    /// Returns the sum of `||c||^2`, and, where the box corrections were
+    /// made while the helper checked its half, theirs.
+    fn pairs<const D: usize>(&mut self, n: usize, count: usize, limits: &Limits) -> (f64, Option<f64>) {
         let sep = limits.robot_sep;
         let inv = sep.map(|s| 1.0 / (s * s));
-        let Projection { pos, corr, touched, scratch, broad, steps, grow, helper } = self;
-        // A pair's chord inflation is at most sqrt(1 + (s_i + s_j)^2 / 4) <=
-        // 1 + (s_i + s_j) / 2 separations, s the robots' largest scaled moves
-        // between instants: robot i's share of the reach is (1 + s_i) / 2.
-        if limits.chord {
-            robot_steps(pos, D, n, count, &inv, steps);
-        } else {
-            steps.clear();
-            steps.resize(n, 0.0);
-        }
-        let check = Check { pos, steps, n, count, limits, inv };
+        let Projection { pos, corr, touched, scratch, broad, steps, grow, helper, first, .. } = self;
+        robot_steps(pos, D, n, count, limits, steps);
+        let check = Check { pos, steps, n, count, limits, inv, first: *first };
         if !(limits.broad_phase && n >= BROAD_PHASE_MIN_ROBOTS) {
             let all = (0..n as u32).flat_map(move |i| (i + 1..n as u32).map(move |j| (i, j)));
-            return check.push::<D>(all, scratch, corr, touched);
+            return (check.push::<D>(all, scratch, corr, touched), None);
         }
-        grow.clear();
-        grow.extend(steps.iter().map(|s| sep.map(|x| x * 0.5 * (1.0 + s))));
-        let candidates = broad.candidates(pos, D, n, count, grow);
-        let Some(link) = helper.as_mut().filter(|h| h.limits == std::ptr::from_ref(limits) as usize) else {
-            return check.push::<D>(candidates.iter().copied(), scratch, corr, touched);
+        let Some(link) = helper.as_mut().filter(|h| h.stage == Stage::Evaluating) else {
+            let candidates = broad.candidates(pos, D, n, count, reach_shares(steps, &sep, grow));
+            return (check.push::<D>(candidates.iter().copied(), scratch, corr, touched), None);
         };
-        // The second half of the pairs on the helper, into its own
-        // corrections, added after: the same iteration up to rounding.
-        let (first, second) = candidates.split_at(candidates.len() / 2);
-        let mut job = link.spare.take().unwrap_or_else(|| Job {
-            xi: Vec::new(),
-            pairs: Vec::new(),
-            share: Share { corr: vec![0.0; corr.len()], touched: vec![false; n], scratch: scratch.clone() },
-            sum: 0.0,
-        });
-        job.xi.clear();
-        job.xi.extend_from_slice(xi);
-        job.pairs.clear();
-        job.pairs.extend_from_slice(second);
-        let sent = link.jobs.send(job).is_ok();
-        let mine = check.push::<D>(first.iter().copied(), scratch, corr, touched);
-        let Some(job) = sent.then(|| receive(&link.done)).flatten() else {
+        // The box while the helper finds the pairs: the same corrections,
+        // added in another order; the helper checks the second half of the
+        // pairs into its own corrections: the same iteration up to rounding.
+        let box_sq = clamp_to_box(pos, corr, touched, limits, D, count);
+        let Some(mine) = receive(&link.firsts) else {
             // The helper is gone (it panicked; the scope reports it): this
-            // thread checks its half too, and the rest of the run alone.
+            // thread checks every pair, for the rest of the run too.
             *helper = None;
-            return mine + check.push::<D>(second.iter().copied(), scratch, corr, touched);
+            let candidates = broad.candidates(pos, D, n, count, reach_shares(steps, &sep, grow));
+            return (check.push::<D>(candidates.iter().copied(), scratch, corr, touched), Some(box_sq));
         };
-        for (c, t) in corr.iter_mut().zip(&job.share.corr) {
-            *c += t;
-        }
-        for (t, u) in touched.iter_mut().zip(&job.share.touched) {
-            *t |= u;
-        }
-        let theirs = job.sum;
-        link.spare = Some(job);
-        mine + theirs
+        let sum = check.push::<D>(mine.iter().copied(), scratch, corr, touched);
+        link.spare_pairs = mine;
+        link.stage = Stage::Checking;
+        (sum, Some(box_sq))
     }
 
     /// Robot-obstacle corrections: where robot `i` is inside the (scaled)
     /// obstacle `m` at an instant, its position is pushed to the surface.
     fn obstacles<const D: usize>(&mut self, n: usize, count: usize, limits: &Limits) -> f64 {
+        if limits.obstacle_sep.is_empty() {
+            return 0.0;
+        }
         let stride = n * count;
-        let Projection { pos, corr, touched, scratch, .. } = self;
+        let Projection { pos, corr, touched, scratch, first, .. } = self;
         let robot_steps = if limits.chord { largest_steps(pos, D, n, count) } else { [0.0; 3] };
         let mut sum = 0.0;
         for (m, sep) in limits.obstacle_sep.iter().enumerate() {
@@ -363,6 +464,9 @@ impl Projection {
                     std::array::from_fn(|a| &pos[a * stride + i * count..a * stride + (i + 1) * count]);
                 if !scratch.violated::<D>(&pi, &track, &inv, bound) {
                     continue;
+                }
+                if *first {
+                    return f64::INFINITY;
                 }
                 touched[i] = true;
                 for k in 0..count {
@@ -449,37 +553,104 @@ impl Scratch {
     }
 }
 
-/// The helper's loop: each job's positions from its iterate, then its pairs'
+/// The helper's loop: each job's positions from its iterate, its broad
+/// phase, the first half of the pairs sent back, then the second half's
 /// corrections, until the projection hangs up.
-fn serve(dim: Dim, n: usize, grid: &SampleGrid, limits: &Limits, jobs: &Receiver<Job>, done: &SyncSender<Job>) {
+fn serve(
+    dim: Dim,
+    n: usize,
+    grid: &SampleGrid,
+    limits: &Limits,
+    jobs: &Receiver<Job>,
+    firsts: &SyncSender<Vec<(u32, u32)>>,
+    done: &SyncSender<Job>,
+) {
     let count = grid.count();
     let (rows, n_xi) = (dim.axes() * n, grid.pt.len() / count);
-    let inv = limits.robot_sep.map(|s| 1.0 / (s * s));
-    let (mut pos, mut steps) = (vec![0.0; rows * count], Vec::with_capacity(n));
+    let sep = limits.robot_sep;
+    let inv = sep.map(|s| 1.0 / (s * s));
+    let (mut pos, mut steps, mut grow) = (vec![0.0; rows * count], Vec::with_capacity(n), Vec::with_capacity(n));
+    let mut broad = BroadPhase::default();
     while let Some(mut job) = receive(jobs) {
         gemm(&mut pos, &job.xi, &grid.pt, rows, n_xi, count, Accum::Replace);
-        if limits.chord {
-            robot_steps(&pos, dim.axes(), n, count, &inv, &mut steps);
-        } else {
-            steps.clear();
-            steps.resize(n, 0.0);
+        robot_steps(&pos, dim.axes(), n, count, limits, &mut steps);
+        let candidates = broad.candidates(&pos, dim.axes(), n, count, reach_shares(&steps, &sep, &mut grow));
+        let (first, second) = candidates.split_at(candidates.len() / 2);
+        let mut theirs = std::mem::take(&mut job.pairs);
+        theirs.clear();
+        theirs.extend_from_slice(first);
+        if firsts.send(theirs).is_err() {
+            return;
         }
-        let check = Check { pos: &pos, steps: &steps, n, count, limits, inv };
+        let check = Check { pos: &pos, steps: &steps, n, count, limits, inv, first: false };
         let Share { corr, touched, scratch } = &mut job.share;
-        corr.fill(0.0);
-        touched.fill(false);
+        clear_touched(corr, touched, count);
         if !limits.chord {
             scratch.target.fill(1.0);
         }
-        let pairs = job.pairs.iter().copied();
+        let pairs = second.iter().copied();
         job.sum = match dim {
             Dim::Two => check.push::<2>(pairs, scratch, corr, touched),
             Dim::Three => check.push::<3>(pairs, scratch, corr, touched),
         };
+        job.mapped.resize(rows * n_xi, 0.0);
+        gemm(&mut job.mapped, corr, &grid.p, rows, count, n_xi, Accum::Replace);
         if done.send(job).is_err() {
             return;
         }
     }
+}
+
+/// Each robot's share of the broad phase's reach per axis, into `grow`:
+/// a pair's chord inflation is at most `sqrt(1 + (s_i + s_j)^2 / 4) <=
+/// 1 + (s_i + s_j) / 2` separations, `s` the robots' largest scaled moves
+/// between instants (`steps`), so robot `i`'s share is `(1 + s_i) / 2`.
+fn reach_shares<'a>(steps: &[f64], sep: &[f64; 3], grow: &'a mut Vec<[f64; 3]>) -> &'a [[f64; 3]] {
+    grow.clear();
+    grow.extend(steps.iter().map(|s| sep.map(|x| x * 0.5 * (1.0 + s))));
+    grow
+}
+
+/// Clamps the positions (`[axis][robot][count]`, `axes` axes) into the box
+/// of `limits`: adds the corrections to `corr`, marks the robots moved in
+/// `touched` and returns the corrections' sum of squares.
+fn clamp_to_box(
+    pos: &[f64],
+    corr: &mut [f64],
+    touched: &mut [bool],
+    limits: &Limits,
+    axes: usize,
+    count: usize,
+) -> f64 {
+    let robots = touched.len();
+    let mut box_sq = 0.0;
+    for ax in 0..axes {
+        let (lo, hi) = (limits.lo[ax], limits.hi[ax]);
+        for (i, touched) in touched.iter_mut().enumerate() {
+            let range = (ax * robots + i) * count..(ax * robots + i + 1) * count;
+            let mut any = false;
+            for (p, c) in pos[range.clone()].iter().zip(&mut corr[range]) {
+                let d = p.clamp(lo, hi) - p;
+                *c += d;
+                box_sq += d * d;
+                any |= d != 0.0;
+            }
+            *touched |= any;
+        }
+    }
+    box_sq
+}
+
+/// Zeroes the rows (`[axis][robot][count]`) of the robots `touched` marks,
+/// and the marks: the rows of unmarked robots are zero already, so this
+/// clears `corr` at a fraction of the memory traffic.
+fn clear_touched(corr: &mut [f64], touched: &mut [bool], count: usize) {
+    for block in corr.chunks_exact_mut(touched.len() * count) {
+        for (row, _) in block.chunks_exact_mut(count).zip(touched.iter()).filter(|(_, t)| **t) {
+            row.fill(0.0);
+        }
+    }
+    touched.fill(false);
 }
 
 /// The next message, spinning for up to [`SPIN`] before blocking; `None`
@@ -510,6 +681,8 @@ struct Check<'a> {
     count: usize,
     limits: &'a Limits,
     inv: [f64; 3],
+    /// Return an infinite sum at the first violating pair, pushing nothing.
+    first: bool,
 }
 
 impl Check<'_> {
@@ -533,6 +706,9 @@ impl Check<'_> {
             if !scratch.violated::<D>(&pi, &pj, inv, bound) {
                 continue;
             }
+            if self.first {
+                return f64::INFINITY;
+            }
             touched[i] = true;
             touched[j] = true;
             for k in 0..count {
@@ -551,9 +727,15 @@ impl Check<'_> {
 }
 
 /// Each of `n` robots' largest move between neighbouring instants, scaled
-/// by `inv`, into `out`.
-fn robot_steps(pos: &[f64], axes: usize, n: usize, count: usize, inv: &[f64; 3], out: &mut Vec<f64>) {
+/// by the robot separations of `limits`, into `out` (zeros without the
+/// chord inflation).
+fn robot_steps(pos: &[f64], axes: usize, n: usize, count: usize, limits: &Limits, out: &mut Vec<f64>) {
     out.clear();
+    if !limits.chord {
+        out.resize(n, 0.0);
+        return;
+    }
+    let inv = limits.robot_sep.map(|s| 1.0 / (s * s));
     out.extend((0..n).map(|i| {
         let mut largest: f64 = 0.0;
         for k in 1..count {
@@ -799,6 +981,31 @@ mod tests {
         assert!(close(&primal(&two.history), &primal(&one.history)));
         // The split is fixed, so two threads repeat themselves exactly.
         assert_eq!(two.state, run(true).state);
+    }
+
+    #[test]
+    fn stopping_at_the_first_violation_decides_as_the_whole_projection_does() {
+        use crate::am::{AmSettings, Engine, Objective};
+        use crate::scenario::RandomScenario;
+        let team = Team { workspace: crate::problem::Workspace::centred(1.6), ..Team::default_for(Dim::Two, 40) };
+        let problem = RandomScenario::new(team.clone()).with_obstacles(2).generate(1).unwrap();
+        let engine = Engine::new(&team, 2, Objective::smoothness(), AmSettings::optimiser()).unwrap();
+        let prepared = engine.prepare(&problem, None).unwrap();
+        let solved = engine.solve_prepared(&prepared).state.xi;
+        let mut verdicts = Vec::new();
+        for xi in [
+            optimise(&problem, AmSettings::optimiser(), 0).state.xi,
+            optimise(&problem, AmSettings::optimiser(), 30).state.xi,
+            solved,
+        ] {
+            for (grid, limits) in [(&engine.grid, &prepared.constraint), (&engine.dense, &prepared.verify)] {
+                let clear = Projection::new(Dim::Two, 40, grid).clear(Dim::Two, 40, grid, limits, &xi);
+                let residual = Projection::new(Dim::Two, 40, grid).run(Dim::Two, 40, grid, limits, &xi);
+                assert_eq!(clear, residual == 0.0, "residual {residual}");
+                verdicts.push(clear);
+            }
+        }
+        assert!(verdicts.contains(&true) && verdicts.contains(&false), "{verdicts:?}");
     }
 
     #[test]

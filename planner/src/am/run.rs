@@ -229,7 +229,7 @@ impl Engine {
     pub fn verify(&self, prepared: &Prepared, xi: &[f64]) -> bool {
         let (dim, n) = (self.team.dim, self.team.robots);
         let clear = |grid: &SampleGrid, limits| {
-            grid.count() == 0 || Projection::new(dim, n, grid).run(dim, n, grid, limits, xi) == 0.0
+            grid.count() == 0 || Projection::new(dim, n, grid).clear(dim, n, grid, limits, xi)
         };
         clear(&self.dense_start, &prepared.verify_start) && clear(&self.dense, &prepared.verify)
     }

