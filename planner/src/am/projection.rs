@@ -66,6 +66,13 @@ impl SampleGrid {
     pub fn count(&self) -> usize {
         self.taus.len()
     }
+
+    /// Values at the instants (`rows x count`) mapped back to coefficients,
+    /// `out = values P` (`rows x n_xi`).
+    pub fn to_coefficients(&self, values: &[f64], rows: usize, out: &mut [f64]) {
+        let count = self.count();
+        gemm(out, values, &self.p, rows, count, self.p.len() / count.max(1), Accum::Replace);
+    }
 }
 
 /// Sizes, box and obstacle tracks one projection checks against.
@@ -371,7 +378,7 @@ impl Projection {
         if self.mapped.len() == g.len() {
             g.copy_from_slice(&self.mapped);
         } else {
-            gemm(g, &self.corr, &grid.p, rows, grid.count(), grid.pt.len() / grid.count(), Accum::Replace);
+            grid.to_coefficients(&self.corr, rows, g);
         }
     }
 
@@ -388,7 +395,7 @@ impl Projection {
         let (count, n_xi) = (grid.count(), grid.pt.len() / grid.count());
         let mut mapped = std::mem::take(&mut self.mapped);
         mapped.resize(D * n * n_xi, 0.0);
-        gemm(&mut mapped, &self.corr, &grid.p, D * n, count, n_xi, Accum::Replace);
+        grid.to_coefficients(&self.corr, D * n, &mut mapped);
         let Some(job) = receive(&link.done) else {
             // The helper is gone (it panicked; the scope reports it).
             self.helper = None;
@@ -594,7 +601,7 @@ fn serve(
             Dim::Three => check.push::<3>(pairs, scratch, corr, touched),
         };
         job.mapped.resize(rows * n_xi, 0.0);
-        gemm(&mut job.mapped, corr, &grid.p, rows, count, n_xi, Accum::Replace);
+        grid.to_coefficients(corr, rows, &mut job.mapped);
         if done.send(job).is_err() {
             return;
         }
