@@ -64,11 +64,21 @@ pub enum PreloadError {
 /// cold plan when it does not verify.
 const WARM_ITERATIONS: usize = 2000;
 
-/// Relative buffer every plan keeps beyond the robots' separation on the
-/// dense verification grid, for tracking error and measurement noise.
-/// Within the first constraint interval after the (measured, possibly
-/// near-contact) start the buffer is not required.
-pub const TRACKING_BUFFER: f64 = 0.02;
+/// Constraint inflation (relative to the separation) kept beyond the
+/// tracking buffer, so that plans converge to the buffered verification
+/// (the engines' default 5% inflation over their 0% verification).
+const CONSTRAINT_HEADROOM: f64 = 0.03;
+
+/// The relative buffer every plan keeps beyond the robots' separation on the
+/// dense verification grid: twice `follow_tolerance` over the smallest
+/// separation. Two robots that each follow their plan within the tolerance
+/// (the condition for re-issuing a held plan) then cannot touch. Within the
+/// first constraint interval after the (measured, possibly near-contact)
+/// start the buffer is not required.
+pub fn tracking_buffer(team: &Team, follow_tolerance: f64) -> f64 {
+    let (a, b) = team.separation();
+    2.0 * follow_tolerance / a.min(b)
+}
 
 /// Start speed (m/s) below which a robot counts as at rest, so that a plan
 /// may be stretched in time without changing its start.
@@ -267,7 +277,13 @@ impl TeamPlanner {
     /// cold-planning threads.
     pub fn preload(config: &TeamConfig) -> Result<Self, PreloadError> {
         let team = config.team()?;
-        let buffered = |s: AmSettings| AmSettings { verify_margin: TRACKING_BUFFER, verify_skip: DENSE_FACTOR, ..s };
+        let buffer = tracking_buffer(&team, config.follow_tolerance_m);
+        let buffered = |s: AmSettings| AmSettings {
+            margin: s.margin.max(buffer + CONSTRAINT_HEADROOM),
+            verify_margin: buffer,
+            verify_skip: DENSE_FACTOR,
+            ..s
+        };
         let max = config.max_obstacles;
         let filter_settings = buffered(AmSettings { max_iterations: WARM_ITERATIONS, ..AmSettings::safety_filter() });
         let filters = EngineSet::preloaded(&team, Objective::Projection, filter_settings, max)?;
@@ -667,15 +683,22 @@ mod tests {
     }
 
     /// Checks that the held plan starts at `problem`'s state at its origin
-    /// and keeps the true sizes on the dense grid.
+    /// and keeps the true sizes on the dense grid, and, from starts apart,
+    /// the tracking buffer too: robots grown by the follow tolerance
+    /// (default 5 mm) do not touch.
     fn assert_verified_from(planner: &TeamPlanner, problem: &Problem) {
         let held = planner.held().expect("a held plan");
         let starts: Vec<StartState> = held.plan.at(0.0).iter().map(|k| StartState::at_rest(k.position)).collect();
         assert!(held.plan.deviation(0.0, &problem.starts) < 1e-6, "starts at the measured state");
-        let check =
-            Problem { team: Team { horizon: held.plan.horizon, ..problem.team.clone() }, starts, ..problem.clone() };
+        let team = Team { horizon: held.plan.horizon, ..problem.team.clone() };
+        let check = Problem { team: team.clone(), starts, ..problem.clone() };
         let m = Metrics::measure(&check, &held.plan);
         assert!(m.min_robot_scaled >= 1.0 && m.workspace_excess <= 0.0, "{m:?}");
+        let mut grown = team.clone();
+        grown.robot.radius += planner.rules.follow_tolerance;
+        grown.robot.half_height += planner.rules.follow_tolerance;
+        let buffered = Metrics::measure(&Problem { team: grown, ..check }, &held.plan);
+        assert!(buffered.min_robot_scaled >= 1.0, "keeps the tracking buffer: {buffered:?}");
     }
 
     /// The first team of the shipped configuration `file` (under the

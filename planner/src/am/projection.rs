@@ -186,6 +186,9 @@ pub(crate) struct Projection {
     helper: Option<PairHelper>,
     /// Stop at the first violation with an infinite sum ([`Self::clear`]).
     first: bool,
+    /// The pair the last [`Self::clear`] stopped at: checked first by the
+    /// next, since while a run converges the same pair tends to stay short.
+    culprit: Option<(u32, u32)>,
 }
 
 /// The main thread's end of a pair helper ([`Projection::with_helper`]).
@@ -265,6 +268,7 @@ impl Projection {
             grow: Vec::with_capacity(robots),
             helper: None,
             first: false,
+            culprit: None,
         }
     }
 
@@ -363,7 +367,9 @@ impl Projection {
     /// Whether `xi` needs no correction at all against `limits` (what a zero
     /// [`Self::run`] means), stopping at the first violating pair or
     /// obstacle: the dense verification, which fails on most of its calls
-    /// while a run converges.
+    /// while a run converges. The pair a previous call stopped at is checked
+    /// before any other (and before the broad phase); the verdict is the
+    /// same either way.
     pub fn clear(&mut self, dim: Dim, robots: usize, grid: &SampleGrid, limits: &Limits, xi: &[f64]) -> bool {
         self.first = true;
         let residual = self.run(dim, robots, grid, limits, xi);
@@ -401,7 +407,7 @@ impl Projection {
             self.helper = None;
             let Projection { pos, corr, touched, scratch, broad, steps, grow, .. } = self;
             let sep = limits.robot_sep;
-            let check = Check { pos, steps, n, count, limits, inv: sep.map(|s| 1.0 / (s * s)), first: false };
+            let check = Check { pos, steps, n, count, limits, inv: sep.map(|s| 1.0 / (s * s)) };
             let pairs = broad.candidates(pos, D, n, count, reach_shares(steps, &sep, grow));
             return check.push::<D>(pairs[pairs.len() / 2..].iter().copied(), scratch, corr, touched);
         };
@@ -423,12 +429,24 @@ impl Projection {
     fn pairs<const D: usize>(&mut self, n: usize, count: usize, limits: &Limits) -> (f64, Option<f64>) {
         let sep = limits.robot_sep;
         let inv = sep.map(|s| 1.0 / (s * s));
-        let Projection { pos, corr, touched, scratch, broad, steps, grow, helper, first, .. } = self;
+        let Projection { pos, corr, touched, scratch, broad, steps, grow, helper, first, culprit, .. } = self;
         robot_steps(pos, D, n, count, limits, steps);
-        let check = Check { pos, steps, n, count, limits, inv, first: *first };
-        if !(limits.broad_phase && n >= BROAD_PHASE_MIN_ROBOTS) {
-            let all = (0..n as u32).flat_map(move |i| (i + 1..n as u32).map(move |j| (i, j)));
-            return (check.push::<D>(all, scratch, corr, touched), None);
+        let check = Check { pos, steps, n, count, limits, inv };
+        let broad_phase = limits.broad_phase && n >= BROAD_PHASE_MIN_ROBOTS;
+        if *first {
+            if culprit.is_some_and(|pair| check.violates::<D>(pair, scratch)) {
+                return (f64::INFINITY, None);
+            }
+            *culprit = if broad_phase {
+                let candidates = broad.candidates(pos, D, n, count, reach_shares(steps, &sep, grow));
+                candidates.iter().copied().find(|&pair| check.violates::<D>(pair, scratch))
+            } else {
+                all_pairs(n).find(|&pair| check.violates::<D>(pair, scratch))
+            };
+            return (if culprit.is_some() { f64::INFINITY } else { 0.0 }, None);
+        }
+        if !broad_phase {
+            return (check.push::<D>(all_pairs(n), scratch, corr, touched), None);
         }
         let Some(link) = helper.as_mut().filter(|h| h.stage == Stage::Evaluating) else {
             let candidates = broad.candidates(pos, D, n, count, reach_shares(steps, &sep, grow));
@@ -589,7 +607,7 @@ fn serve(
         if firsts.send(theirs).is_err() {
             return;
         }
-        let check = Check { pos: &pos, steps: &steps, n, count, limits, inv, first: false };
+        let check = Check { pos: &pos, steps: &steps, n, count, limits, inv };
         let Share { corr, touched, scratch } = &mut job.share;
         clear_touched(corr, touched, count);
         if !limits.chord {
@@ -688,11 +706,24 @@ struct Check<'a> {
     count: usize,
     limits: &'a Limits,
     inv: [f64; 3],
-    /// Return an infinite sum at the first violating pair, pushing nothing.
-    first: bool,
 }
 
 impl Check<'_> {
+    /// The positions of robot `i`, per axis.
+    #[inline(always)]
+    fn robot<const D: usize>(&self, i: usize) -> [&[f64]; D] {
+        let (count, stride) = (self.count, self.n * self.count);
+        std::array::from_fn(|a| &self.pos[a * stride + i * count..a * stride + (i + 1) * count])
+    }
+
+    /// Whether the pair `(i, j)` comes closer than its target at any instant.
+    #[inline(always)]
+    fn violates<const D: usize>(&self, (i, j): (u32, u32), scratch: &mut Scratch) -> bool {
+        let (i, j) = (i as usize, j as usize);
+        let bound = self.limits.chord.then(|| 1.0 + 0.25 * (self.steps[i] + self.steps[j]).powi(2));
+        scratch.violated::<D>(&self.robot::<D>(i), &self.robot::<D>(j), &self.inv, bound)
+    }
+
     /// Pushes apart every violating pair of `pairs` (`i < j`, in order),
     /// adding to `corr` and marking `touched`; returns the sum of `||c||^2`.
     fn push<const D: usize>(
@@ -702,20 +733,15 @@ impl Check<'_> {
         corr: &mut [f64],
         touched: &mut [bool],
     ) -> f64 {
-        let (pos, count, inv, sep) = (self.pos, self.count, &self.inv, &self.limits.robot_sep);
+        let (count, inv, sep) = (self.count, &self.inv, &self.limits.robot_sep);
         let stride = self.n * count;
         let mut sum = 0.0;
-        for (i, j) in pairs {
-            let (i, j) = (i as usize, j as usize);
-            let pi: [&[f64]; D] = std::array::from_fn(|a| &pos[a * stride + i * count..a * stride + (i + 1) * count]);
-            let pj: [&[f64]; D] = std::array::from_fn(|a| &pos[a * stride + j * count..a * stride + (j + 1) * count]);
-            let bound = self.limits.chord.then(|| 1.0 + 0.25 * (self.steps[i] + self.steps[j]).powi(2));
-            if !scratch.violated::<D>(&pi, &pj, inv, bound) {
+        for pair in pairs {
+            if !self.violates::<D>(pair, scratch) {
                 continue;
             }
-            if self.first {
-                return f64::INFINITY;
-            }
+            let (i, j) = (pair.0 as usize, pair.1 as usize);
+            let (pi, pj) = (self.robot::<D>(i), self.robot::<D>(j));
             touched[i] = true;
             touched[j] = true;
             for k in 0..count {
@@ -731,6 +757,11 @@ impl Check<'_> {
         }
         sum
     }
+}
+
+/// Every pair `i < j` of `n` robots, in order.
+fn all_pairs(n: usize) -> impl Iterator<Item = (u32, u32)> {
+    (0..n as u32).flat_map(move |i| (i + 1..n as u32).map(move |j| (i, j)))
 }
 
 /// Each of `n` robots' largest move between neighbouring instants, scaled
@@ -1000,15 +1031,21 @@ mod tests {
         let prepared = engine.prepare(&problem, None).unwrap();
         let solved = engine.solve_prepared(&prepared).state.xi;
         let mut verdicts = Vec::new();
+        // Kept across the iterates: each call checks first the pair the
+        // previous one stopped at.
+        let mut kept = [Projection::new(Dim::Two, 40, &engine.grid), Projection::new(Dim::Two, 40, &engine.dense)];
         for xi in [
             optimise(&problem, AmSettings::optimiser(), 0).state.xi,
             optimise(&problem, AmSettings::optimiser(), 30).state.xi,
             solved,
         ] {
-            for (grid, limits) in [(&engine.grid, &prepared.constraint), (&engine.dense, &prepared.verify)] {
+            for (g, (grid, limits)) in
+                [(&engine.grid, &prepared.constraint), (&engine.dense, &prepared.verify)].into_iter().enumerate()
+            {
                 let clear = Projection::new(Dim::Two, 40, grid).clear(Dim::Two, 40, grid, limits, &xi);
                 let residual = Projection::new(Dim::Two, 40, grid).run(Dim::Two, 40, grid, limits, &xi);
                 assert_eq!(clear, residual == 0.0, "residual {residual}");
+                assert_eq!(kept[g].clear(Dim::Two, 40, grid, limits, &xi), clear);
                 verdicts.push(clear);
             }
         }

@@ -178,6 +178,7 @@ impl Engine {
     ) -> AmOutcome {
         let (dim, n) = (self.team.dim, self.team.robots);
         let mut work = self.work();
+        let mut verifier = None;
         let mut history = Vec::new();
         let mut iterations = 0;
         let s = &self.settings;
@@ -190,7 +191,12 @@ impl Engine {
             let acceptable = || iterations > 0 || self.meets_boundary(prepared, &state.xi);
             let stop = if !verifying && primal <= s.tolerance && acceptable() {
                 Some(Stop::Tolerance)
-            } else if verifying && primal <= s.verify_below && due && acceptable() && self.verify(prepared, &state.xi) {
+            } else if verifying
+                && primal <= s.verify_below
+                && due
+                && acceptable()
+                && self.verify_with(verifier.get_or_insert_with(|| Verifier::new(self)), prepared, &state.xi)
+            {
                 Some(Stop::Verified)
             } else if iterations >= cap {
                 Some(Stop::IterationCap)
@@ -227,11 +233,32 @@ impl Engine {
     /// start, which may be in near-contact) are held to the success
     /// verdict's tolerance instead.
     pub fn verify(&self, prepared: &Prepared, xi: &[f64]) -> bool {
+        self.verify_with(&mut Verifier::new(self), prepared, xi)
+    }
+
+    /// [`Self::verify`] with a run's verification memory.
+    fn verify_with(&self, verifier: &mut Verifier, prepared: &Prepared, xi: &[f64]) -> bool {
         let (dim, n) = (self.team.dim, self.team.robots);
-        let clear = |grid: &SampleGrid, limits| {
-            grid.count() == 0 || Projection::new(dim, n, grid).clear(dim, n, grid, limits, xi)
+        let clear = |projection: &mut Projection, grid: &SampleGrid, limits| {
+            grid.count() == 0 || projection.clear(dim, n, grid, limits, xi)
         };
-        clear(&self.dense_start, &prepared.verify_start) && clear(&self.dense, &prepared.verify)
+        clear(&mut verifier.start, &self.dense_start, &prepared.verify_start)
+            && clear(&mut verifier.dense, &self.dense, &prepared.verify)
+    }
+}
+
+/// A run's dense verification: the working memory of its two grids, kept
+/// between calls (a 256-robot dense grid is megabytes) with the pair each
+/// last failed at.
+struct Verifier {
+    start: Projection,
+    dense: Projection,
+}
+
+impl Verifier {
+    fn new(engine: &Engine) -> Self {
+        let (dim, n) = (engine.team.dim, engine.team.robots);
+        Self { start: Projection::new(dim, n, &engine.dense_start), dense: Projection::new(dim, n, &engine.dense) }
     }
 }
 

@@ -387,8 +387,8 @@ fn header(f: &HeaderFacts) -> String {
          started from the flow samples (the paper's ablation). Rows a method cannot plan say why. Success is \
          the dense verdict of `flowopt_planner::metrics` (every separation kept to 1% on 4K instants, box, \
          boundary conditions). Smoothness is the mean over robots of the sum of squared accelerations over \
-         the team's K samples (m^2/s^4; K = 50, raised with the degree for workspaces over 7.5 m across, \
-         `Team::resolved_for_workspace`: 54 for the crowd of 128 robots, 76 for 256, so their smoothness \
+         the team's K samples (m^2/s^4; K = 50, raised with the degree for workspaces over 6.8 m across, \
+         `Team::resolved_for_workspace`: 59 for the crowd of 128 robots, 84 for 256, so their smoothness \
          sums more samples); min clearance is the smallest surface gap between two robots or a \
          robot and an obstacle (m).\n\n",
         f.command,
