@@ -22,8 +22,9 @@
 //!   warm start.
 //! - **Fallback** when nothing verified by the deadline: the held plan if
 //!   the robots follow it; else a verified stopping plan (every robot
-//!   brought to rest along its motion, [`flowopt_planner::stopping`]);
-//!   else nothing ([`Follow::Nothing`]).
+//!   brought to rest along its motion, [`flowopt_planner::stopping`];
+//!   verified at the true sizes, without the tracking buffer); else
+//!   nothing ([`Follow::Nothing`]).
 //! - **Limits.** A plan exceeding the team's speed or acceleration limits
 //!   is stretched in time when the robots start at rest (the paper's
 //!   post-hoc time scaling) and refused otherwise ([`Why::Limits`]).
@@ -289,8 +290,12 @@ impl TeamPlanner {
         let filters = EngineSet::preloaded(&team, Objective::Projection, filter_settings, max)?;
         let stop_horizon = (2.0 * config.max_speed / config.max_acceleration).max(0.5);
         let stop_team = stopping_team(&team, stop_horizon);
-        let stops =
-            EngineSet::preloaded(&stop_team, Objective::Projection, buffered(AmSettings::safety_filter()), max)?;
+        // Stopping plans, the last resort before none, are verified at the
+        // true sizes: robots a jam has left within the buffer of each other
+        // are then still held apart under control instead of braking on
+        // their own (and drifting) with no plan at all.
+        let stop_settings = AmSettings { verify_margin: 0.0, ..buffered(AmSettings::safety_filter()) };
+        let stops = EngineSet::preloaded(&stop_team, Objective::Projection, stop_settings, max)?;
         let stop_reference = SmoothReference::new(&stop_team).map_err(|e| match e {
             ReferenceError::Basis(b) => EngineError::Problem(b.into()),
             ReferenceError::Kkt(k) => EngineError::Kkt(k),
