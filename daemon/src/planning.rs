@@ -699,7 +699,7 @@ mod tests {
         let check = Problem { team: team.clone(), starts, ..problem.clone() };
         let m = Metrics::measure(&check, &held.plan);
         assert!(m.min_robot_scaled >= 1.0 && m.workspace_excess <= 0.0, "{m:?}");
-        let mut grown = team.clone();
+        let mut grown = team;
         grown.robot.radius += planner.rules.follow_tolerance;
         grown.robot.half_height += planner.rules.follow_tolerance;
         let buffered = Metrics::measure(&Problem { team: grown, ..check }, &held.plan);

@@ -482,11 +482,10 @@ impl Projection {
         for (m, sep) in limits.obstacle_sep.iter().enumerate() {
             let inv = sep.map(|s| 1.0 / (s * s));
             let rows = &limits.tracks[m * D * count..(m + 1) * D * count];
-            let track: [&[f64]; D] = std::array::from_fn(|a| &rows[a * count..(a + 1) * count]);
+            let track = robot_rows::<D>(rows, 1, count, 0);
             let bound = limits.chord.then(|| largest_target(&robot_steps, &largest_steps(rows, D, 1, count), &inv));
             for i in 0..n {
-                let pi: [&[f64]; D] =
-                    std::array::from_fn(|a| &pos[a * stride + i * count..a * stride + (i + 1) * count]);
+                let pi = robot_rows::<D>(pos, n, count, i);
                 if !scratch.violated::<D>(&pi, &track, &inv, bound) {
                     continue;
                 }
@@ -709,19 +708,14 @@ struct Check<'a> {
 }
 
 impl Check<'_> {
-    /// The positions of robot `i`, per axis.
-    #[inline(always)]
-    fn robot<const D: usize>(&self, i: usize) -> [&[f64]; D] {
-        let (count, stride) = (self.count, self.n * self.count);
-        std::array::from_fn(|a| &self.pos[a * stride + i * count..a * stride + (i + 1) * count])
-    }
-
     /// Whether the pair `(i, j)` comes closer than its target at any instant.
     #[inline(always)]
     fn violates<const D: usize>(&self, (i, j): (u32, u32), scratch: &mut Scratch) -> bool {
         let (i, j) = (i as usize, j as usize);
         let bound = self.limits.chord.then(|| 1.0 + 0.25 * (self.steps[i] + self.steps[j]).powi(2));
-        scratch.violated::<D>(&self.robot::<D>(i), &self.robot::<D>(j), &self.inv, bound)
+        let (pi, pj) =
+            (robot_rows::<D>(self.pos, self.n, self.count, i), robot_rows::<D>(self.pos, self.n, self.count, j));
+        scratch.violated::<D>(&pi, &pj, &self.inv, bound)
     }
 
     /// Pushes apart every violating pair of `pairs` (`i < j`, in order),
@@ -741,7 +735,7 @@ impl Check<'_> {
                 continue;
             }
             let (i, j) = (pair.0 as usize, pair.1 as usize);
-            let (pi, pj) = (self.robot::<D>(i), self.robot::<D>(j));
+            let (pi, pj) = (robot_rows::<D>(self.pos, self.n, count, i), robot_rows::<D>(self.pos, self.n, count, j));
             touched[i] = true;
             touched[j] = true;
             for k in 0..count {
@@ -757,6 +751,14 @@ impl Check<'_> {
         }
         sum
     }
+}
+
+/// Robot `i`'s rows of `values` (`[axis][robot][count]`, `n` robots), one
+/// per axis.
+#[inline(always)]
+fn robot_rows<const D: usize>(values: &[f64], n: usize, count: usize, i: usize) -> [&[f64]; D] {
+    let stride = n * count;
+    std::array::from_fn(|a| &values[a * stride + i * count..a * stride + (i + 1) * count])
 }
 
 /// Every pair `i < j` of `n` robots, in order.
