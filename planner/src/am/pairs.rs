@@ -1,14 +1,17 @@
 //! Which robot pairs can come closer than their separation, so that the
-//! projection only checks those: sweep-and-prune over each robot's
-//! bounding box in each of a few time segments of the grid.
+//! projection only checks those, and only at the instants they can: sweep-
+//! and-prune over each robot's bounding box in each of a few time segments
+//! of the grid.
 //!
 //! Two robots whose scaled distance is below `R` at some instant are within
 //! `R` separations of each other along every axis at that instant, so their
 //! boxes for the segment holding it, each grown by its robot's share of `R`
 //! separations, overlap: no
 //! violating pair is ever left out, and the pairs are returned in the order
-//! the all-pairs loop visits them, so the iteration is the same number for
-//! number (`tests::the_broad_phase_iteration_equals_the_all_pairs_one`).
+//! the all-pairs loop visits them. Each pair comes with the instants from
+//! its first to its last overlapping segment: it cannot violate outside
+//! them, so checking only those is the same iteration number for number
+//! (`tests::the_broad_phase_iteration_equals_the_all_pairs_one`).
 //! The pair set follows the iterate: boxes are built grown by half again
 //! ([`SLACK`]) and kept while every robot's current box (its motion since
 //! the build added) still fits inside its built one, so a kept set is a
@@ -34,6 +37,23 @@ const SLACK: f64 = 0.5;
 /// tracked worse (docs/BENCHMARKS.md, "Big teams").
 pub(crate) const KEEP_MIN_ROBOTS: usize = 128;
 
+/// A pair `i < j` that may come closer than its reach, and the instants
+/// `from..to` it may at (outside them its boxes never overlap).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) struct Candidate {
+    pub i: u32,
+    pub j: u32,
+    pub from: u16,
+    pub to: u16,
+}
+
+impl Candidate {
+    /// The pair `(i, j)` at every one of `count` instants.
+    pub fn whole(i: u32, j: u32, count: usize) -> Self {
+        Self { i, j, from: 0, to: count as u16 }
+    }
+}
+
 /// The broad phase's working memory.
 #[derive(Debug, Clone, Default)]
 pub(crate) struct BroadPhase {
@@ -44,8 +64,11 @@ pub(crate) struct BroadPhase {
     order: Vec<usize>,
     /// Which pairs `(i, j)`, `i < j`, are candidates: bit `i * n + j`.
     found: Vec<u64>,
-    /// Candidate pairs `(i, j)`, `i < j`, sorted.
-    pairs: Vec<(u32, u32)>,
+    /// Per pair bit of `found`, once set: its first and last overlapping
+    /// segment (stale values where the bit is clear).
+    segments: Vec<[u16; 2]>,
+    /// Candidate pairs, sorted.
+    pairs: Vec<Candidate>,
     /// The positions the pairs were found from (empty before the first).
     built: Vec<f64>,
     /// Each robot's growth per axis they were found with.
@@ -55,9 +78,9 @@ pub(crate) struct BroadPhase {
 impl BroadPhase {
     /// The pairs of `n` robots whose positions `pos` (`[axis][robot][count]`,
     /// `axes` axes) may come closer than `grow[i] + grow[j]` along every
-    /// axis at some instant, sorted. `grow` (`[robot][axis]`, m) is each
-    /// robot's share of the pair's reach.
-    pub fn candidates(&mut self, pos: &[f64], axes: usize, n: usize, count: usize, grow: &[[f64; 3]]) -> &[(u32, u32)] {
+    /// axis at some instant, sorted, with the instants they may at. `grow`
+    /// (`[robot][axis]`, m) is each robot's share of the pair's reach.
+    pub fn candidates(&mut self, pos: &[f64], axes: usize, n: usize, count: usize, grow: &[[f64; 3]]) -> &[Candidate] {
         if n < KEEP_MIN_ROBOTS {
             self.sweep(pos, grow, axes, n, count);
         } else if !self.still_covers(pos, axes, n, count, grow) {
@@ -91,9 +114,10 @@ impl BroadPhase {
     }
 
     /// Finds the pairs whose boxes around `pos`, grown by `grow`, overlap in
-    /// some segment.
+    /// some segment, and the instants of their first to last such segment.
     fn sweep(&mut self, pos: &[f64], grow: &[[f64; 3]], axes: usize, n: usize, count: usize) {
         let segments = count.div_ceil(SEGMENT).max(1);
+        self.segments.resize(n * n, [0; 2]);
         self.boxes.clear();
         self.boxes.resize(segments * n, [[f64::INFINITY, f64::NEG_INFINITY]; 3]);
         for a in 0..axes {
@@ -126,7 +150,13 @@ impl BroadPhase {
                     }
                     if (1..axes).all(|a| bj[a][0] <= bi[a][1] && bi[a][0] <= bj[a][1]) {
                         let bit = i.min(j) * n + i.max(j);
-                        self.found[bit / 64] |= 1 << (bit % 64);
+                        let (word, mask) = (&mut self.found[bit / 64], 1 << (bit % 64));
+                        // Segments go in order: the first sets both ends.
+                        if *word & mask == 0 {
+                            self.segments[bit][0] = s as u16;
+                        }
+                        *word |= mask;
+                        self.segments[bit][1] = s as u16;
                     }
                 }
             }
@@ -136,7 +166,13 @@ impl BroadPhase {
             let mut bits = word;
             while bits != 0 {
                 let bit = w * 64 + bits.trailing_zeros() as usize;
-                self.pairs.push(((bit / n) as u32, (bit % n) as u32));
+                let [first, last] = self.segments[bit].map(usize::from);
+                self.pairs.push(Candidate {
+                    i: (bit / n) as u32,
+                    j: (bit % n) as u32,
+                    from: (first * SEGMENT) as u16,
+                    to: ((last + 1) * SEGMENT).min(count) as u16,
+                });
                 bits &= bits - 1;
             }
         }
@@ -159,10 +195,15 @@ mod tests {
         assert!(broad.candidates(&pos, 2, n, count, &[[0.15; 3]; 3]).is_empty());
         // Robot 2 passes robot 1 at the last instant only.
         pos[2 * count + count - 1] = 1.1;
-        assert_eq!(broad.candidates(&pos, 2, n, count, &[[0.15; 3]; 3]), &[(1, 2)]);
-        assert_eq!(broad.candidates(&pos, 2, n, count, &[[0.5; 3]; 3]), &[(0, 1), (1, 2)]);
+        // Only in the second segment (instants 7..10).
+        let at = |i, j, from, to| Candidate { i, j, from, to };
+        assert_eq!(broad.candidates(&pos, 2, n, count, &[[0.15; 3]; 3]), &[at(1, 2, 7, 10)]);
+        assert_eq!(broad.candidates(&pos, 2, n, count, &[[0.5; 3]; 3]), &[at(0, 1, 0, 10), at(1, 2, 0, 10)]);
         // A robot's own share reaches further: robot 0 grown by 0.95 meets 1.
-        assert_eq!(broad.candidates(&pos, 2, n, count, &[[0.95; 3], [0.15; 3], [0.15; 3]]), &[(0, 1), (1, 2)]);
+        assert_eq!(
+            broad.candidates(&pos, 2, n, count, &[[0.95; 3], [0.15; 3], [0.15; 3]]),
+            &[at(0, 1, 0, 10), at(1, 2, 7, 10)]
+        );
     }
 
     #[test]
@@ -184,12 +225,13 @@ mod tests {
         assert_eq!(broad.built[2 * count], 2.0);
         // 0.65 m: beyond the slack, so found anew (robot 2 at 1.35 meets 1).
         pos[2 * count..3 * count].iter_mut().for_each(|x| *x -= 0.6);
-        assert_eq!(broad.candidates(&pos, 2, n, count, &grow), &[(1, 2)]);
+        let pair = |c: &[Candidate]| c.iter().map(|c| (c.i, c.j)).collect::<Vec<_>>();
+        assert_eq!(pair(broad.candidates(&pos, 2, n, count, &grow)), [(1, 2)]);
         assert!((broad.built[2 * count] - 1.35).abs() < 1e-12);
         // A robot's growth rising past its spare also finds them anew.
         let mut wider = grow.clone();
         wider[2] = [0.45; 3];
-        assert_eq!(broad.candidates(&pos, 2, n, count, &wider), &[(1, 2)]);
+        assert_eq!(pair(broad.candidates(&pos, 2, n, count, &wider)), [(1, 2)]);
         assert_eq!(broad.built_grow[2][0], 0.45 * (1.0 + SLACK));
         // A small team sweeps its exact boxes every time and keeps nothing.
         let mut line = vec![0.0; 2 * 3 * count];

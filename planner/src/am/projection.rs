@@ -13,11 +13,12 @@
 //! shrunk by the tolerance, a plan is feasible exactly when no correction is
 //! needed.
 
+use std::ops::Range;
 use std::sync::mpsc::{Receiver, SyncSender, TryRecvError, sync_channel};
 use std::thread::Scope;
 use std::time::Instant;
 
-use super::pairs::{BROAD_PHASE_MIN_ROBOTS, BroadPhase};
+use super::pairs::{BROAD_PHASE_MIN_ROBOTS, BroadPhase, Candidate};
 use crate::basis::bernstein_row;
 use crate::linalg::{Accum, gemm};
 use crate::problem::{Dim, Problem};
@@ -198,13 +199,13 @@ struct PairHelper {
     /// while this thread evaluates its own and clamps them into the box.
     jobs: SyncSender<Job>,
     /// The first half of the pairs, for this thread.
-    firsts: Receiver<Vec<(u32, u32)>>,
+    firsts: Receiver<Vec<Candidate>>,
     /// The job back, with the helper's corrections for the second half.
     done: Receiver<Job>,
     /// The job's buffers between iterations.
     spare: Option<Job>,
     /// The first half's buffer between iterations.
-    spare_pairs: Vec<(u32, u32)>,
+    spare_pairs: Vec<Candidate>,
     /// Where the helper is in the current iteration.
     stage: Stage,
     /// Address of the limits the helper checks against (compared, never read).
@@ -228,7 +229,7 @@ enum Stage {
 #[derive(Debug)]
 struct Job {
     xi: Vec<f64>,
-    pairs: Vec<(u32, u32)>,
+    pairs: Vec<Candidate>,
     share: Share,
     /// `share.corr P`, `[axis][robot][coef]`.
     mapped: Vec<f64>,
@@ -434,19 +435,20 @@ impl Projection {
         let check = Check { pos, steps, n, count, limits, inv };
         let broad_phase = limits.broad_phase && n >= BROAD_PHASE_MIN_ROBOTS;
         if *first {
-            if culprit.is_some_and(|pair| check.violates::<D>(pair, scratch)) {
+            if culprit.is_some_and(|(i, j)| check.violates::<D>(Candidate::whole(i, j, count), scratch)) {
                 return (f64::INFINITY, None);
             }
-            *culprit = if broad_phase {
+            let found = if broad_phase {
                 let candidates = broad.candidates(pos, D, n, count, reach_shares(steps, &sep, grow));
                 candidates.iter().copied().find(|&pair| check.violates::<D>(pair, scratch))
             } else {
-                all_pairs(n).find(|&pair| check.violates::<D>(pair, scratch))
+                all_pairs(n, count).find(|&pair| check.violates::<D>(pair, scratch))
             };
+            *culprit = found.map(|c| (c.i, c.j));
             return (if culprit.is_some() { f64::INFINITY } else { 0.0 }, None);
         }
         if !broad_phase {
-            return (check.push::<D>(all_pairs(n), scratch, corr, touched), None);
+            return (check.push::<D>(all_pairs(n, count), scratch, corr, touched), None);
         }
         let Some(link) = helper.as_mut().filter(|h| h.stage == Stage::Evaluating) else {
             let candidates = broad.candidates(pos, D, n, count, reach_shares(steps, &sep, grow));
@@ -486,7 +488,7 @@ impl Projection {
             let bound = limits.chord.then(|| largest_target(&robot_steps, &largest_steps(rows, D, 1, count), &inv));
             for i in 0..n {
                 let pi = robot_rows::<D>(pos, n, count, i);
-                if !scratch.violated::<D>(&pi, &track, &inv, bound) {
+                if !scratch.violated::<D>(&pi, &track, &inv, bound, 0..count) {
                     continue;
                 }
                 if *first {
@@ -509,9 +511,10 @@ impl Projection {
 }
 
 impl Scratch {
-    /// Whether `p` and `q` come closer than their target at any instant
-    /// (the screen every pair goes through; vectorises over instants).
-    /// Leaves the per-instant targets for [`push`].
+    /// Whether `p` and `q` come closer than their target at any of the
+    /// `instants` (the screen every pair goes through; vectorises over
+    /// instants). Leaves the per-instant targets there for [`push`]; the
+    /// targets at the ends take the moves inside `instants` only.
     ///
     /// With the chord inflation (`bound`, the largest target any pair can
     /// have this iteration), an instant's target is `1 + L^2 / 4` (squared,
@@ -527,10 +530,11 @@ impl Scratch {
         q: &[&[f64]; D],
         inv: &[f64; 3],
         bound: Option<f64>,
+        instants: Range<usize>,
     ) -> bool {
-        let count = self.target.len();
-        let p: [&[f64]; D] = std::array::from_fn(|a| &p[a][..count]);
-        let q: [&[f64]; D] = std::array::from_fn(|a| &q[a][..count]);
+        let count = instants.len();
+        let p: [&[f64]; D] = std::array::from_fn(|a| &p[a][instants.clone()]);
+        let q: [&[f64]; D] = std::array::from_fn(|a| &q[a][instants.clone()]);
         let scaled = |k: usize| -> f64 {
             let mut s = 0.0;
             for a in 0..D {
@@ -554,7 +558,7 @@ impl Scratch {
         }
         // Three passes that vectorise: the squared moves between instants,
         // the targets, the comparison.
-        let step = &mut self.step[..count];
+        let step = &mut self.step[instants.clone()];
         step[count - 1] = 0.0;
         for k in 0..count - 1 {
             let mut l = 0.0;
@@ -564,7 +568,7 @@ impl Scratch {
             }
             step[k] = l;
         }
-        let target = &mut self.target[..count];
+        let target = &mut self.target[instants];
         target[0] = 1.0 + 0.25 * step[0];
         for k in 1..count {
             target[k] = 1.0 + 0.25 * f64::max(step[k - 1], step[k]);
@@ -586,7 +590,7 @@ fn serve(
     grid: &SampleGrid,
     limits: &Limits,
     jobs: &Receiver<Job>,
-    firsts: &SyncSender<Vec<(u32, u32)>>,
+    firsts: &SyncSender<Vec<Candidate>>,
     done: &SyncSender<Job>,
 ) {
     let count = grid.count();
@@ -708,21 +712,30 @@ struct Check<'a> {
 }
 
 impl Check<'_> {
-    /// Whether the pair `(i, j)` comes closer than its target at any instant.
+    /// Whether the candidate comes closer than its target at any of the
+    /// [`Self::instants`] it is checked at.
     #[inline(always)]
-    fn violates<const D: usize>(&self, (i, j): (u32, u32), scratch: &mut Scratch) -> bool {
-        let (i, j) = (i as usize, j as usize);
+    fn violates<const D: usize>(&self, pair: Candidate, scratch: &mut Scratch) -> bool {
+        let (i, j) = (pair.i as usize, pair.j as usize);
         let bound = self.limits.chord.then(|| 1.0 + 0.25 * (self.steps[i] + self.steps[j]).powi(2));
         let (pi, pj) =
             (robot_rows::<D>(self.pos, self.n, self.count, i), robot_rows::<D>(self.pos, self.n, self.count, j));
-        scratch.violated::<D>(&pi, &pj, &self.inv, bound)
+        scratch.violated::<D>(&pi, &pj, &self.inv, bound, self.instants(pair))
+    }
+
+    /// The instants a candidate is checked at: its own and one more on
+    /// either side, whose moves its end instants' chord targets take. The
+    /// extra instants lie outside the candidate's (where its boxes do not
+    /// overlap, so they cannot violate even with their targets cut short).
+    fn instants(&self, pair: Candidate) -> Range<usize> {
+        usize::from(pair.from).saturating_sub(1)..(usize::from(pair.to) + 1).min(self.count)
     }
 
     /// Pushes apart every violating pair of `pairs` (`i < j`, in order),
     /// adding to `corr` and marking `touched`; returns the sum of `||c||^2`.
     fn push<const D: usize>(
         &self,
-        pairs: impl Iterator<Item = (u32, u32)>,
+        pairs: impl Iterator<Item = Candidate>,
         scratch: &mut Scratch,
         corr: &mut [f64],
         touched: &mut [bool],
@@ -734,11 +747,11 @@ impl Check<'_> {
             if !self.violates::<D>(pair, scratch) {
                 continue;
             }
-            let (i, j) = (pair.0 as usize, pair.1 as usize);
+            let (i, j) = (pair.i as usize, pair.j as usize);
             let (pi, pj) = (robot_rows::<D>(self.pos, self.n, count, i), robot_rows::<D>(self.pos, self.n, count, j));
             touched[i] = true;
             touched[j] = true;
-            for k in 0..count {
+            for k in self.instants(pair) {
                 let Some(c) = push::<D>(&pi, &pj, k, inv, sep, scratch.target[k], (i, j)) else {
                     continue;
                 };
@@ -761,9 +774,10 @@ fn robot_rows<const D: usize>(values: &[f64], n: usize, count: usize, i: usize) 
     std::array::from_fn(|a| &values[a * stride + i * count..a * stride + (i + 1) * count])
 }
 
-/// Every pair `i < j` of `n` robots, in order.
-fn all_pairs(n: usize) -> impl Iterator<Item = (u32, u32)> {
-    (0..n as u32).flat_map(move |i| (i + 1..n as u32).map(move |j| (i, j)))
+/// Every pair `i < j` of `n` robots, in order, at every one of `count`
+/// instants.
+fn all_pairs(n: usize, count: usize) -> impl Iterator<Item = Candidate> {
+    (0..n as u32).flat_map(move |i| (i + 1..n as u32).map(move |j| Candidate::whole(i, j, count)))
 }
 
 /// Each of `n` robots' largest move between neighbouring instants, scaled
