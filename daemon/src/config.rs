@@ -164,9 +164,12 @@ pub struct LearnedConfig {
     /// Candidates sampled per cold plan.
     #[serde(default = "default_candidates")]
     pub candidates: usize,
-    /// Flow integration steps (Euler).
+    /// Flow integration steps (Euler) for problems without obstacles.
     #[serde(default = "default_flow_steps")]
     pub flow_steps: usize,
+    /// Flow integration steps (Euler) for problems with obstacles.
+    #[serde(default = "default_obstacle_flow_steps")]
+    pub obstacle_flow_steps: usize,
     /// Candidates refined by the safety filter.
     #[serde(default = "default_top_k")]
     pub top_k: usize,
@@ -184,6 +187,9 @@ fn default_candidates() -> usize {
 }
 fn default_flow_steps() -> usize {
     PipelineSettings::default().steps
+}
+fn default_obstacle_flow_steps() -> usize {
+    PipelineSettings::default().obstacle_steps
 }
 fn default_top_k() -> usize {
     PipelineSettings::default().top_k

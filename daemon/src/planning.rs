@@ -309,6 +309,7 @@ impl TeamPlanner {
             let settings = PipelineSettings {
                 candidates: l.candidates,
                 steps: l.flow_steps,
+                obstacle_steps: l.obstacle_flow_steps,
                 top_k: l.top_k,
                 use_init: planner.model().has_init(),
                 // Racing the optimiser, the learned planner keeps to one core.

@@ -40,8 +40,11 @@ pub const DEFAULT_SF_SMOOTHING: f64 = 3.0;
 pub struct PipelineSettings {
     /// Candidates sampled per problem (at least 1 is sampled).
     pub candidates: usize,
-    /// Flow integration steps.
+    /// Flow integration steps for problems without obstacles.
     pub steps: usize,
+    /// Flow integration steps for problems with obstacles (static or
+    /// moving), where one step loses instances.
+    pub obstacle_steps: usize,
     /// Flow integrator.
     pub solver: Solver,
     /// Candidates refined by the safety filter (clamped to 1..=candidates).
@@ -82,17 +85,21 @@ pub enum Settle {
     Smoothest,
 }
 
-/// The defaults: 8 candidates in 2 Euler steps on both cores, the best 6
-/// refined until one verifies. Measured on 100 unseen 16-robot instances
-/// (docs/LEARNED.md): with 8 obstacles 16 candidates and the top 4 solved
-/// 97%, the top 6 of 16 99%, the top 6 of 8 100% in 32% less time; 4 steps
-/// instead of 2 cost 1.7 ms more for no better plans, 1 step lost
-/// instances with obstacles.
+/// The defaults: 8 candidates on both cores, in 1 Euler step without
+/// obstacles and 2 with, the best 6 refined until one verifies. Measured on
+/// 100 unseen 16-robot instances (docs/LEARNED.md): with 8 obstacles 16
+/// candidates and the top 4 solved 97%, the top 6 of 16 99%, the top 6 of
+/// 8 100% in 32% less time; 4 steps instead of 2 cost 1.7 ms more for no
+/// better plans, 1 step lost instances with obstacles. Without obstacles 1
+/// step solved every random, swap, crossing, formation and crowd scene of
+/// 16-64 robots (2D and 3D) that 2 did, with the sampling stage halved and
+/// smoothness within 7%.
 impl Default for PipelineSettings {
     fn default() -> Self {
         Self {
             candidates: 8,
-            steps: 2,
+            steps: 1,
+            obstacle_steps: 2,
             solver: Solver::Euler,
             top_k: 6,
             use_init: true,
@@ -101,6 +108,13 @@ impl Default for PipelineSettings {
             reroute: true,
             settle: Settle::FirstVerified,
         }
+    }
+}
+
+impl PipelineSettings {
+    /// Flow integration steps for a problem with `obstacles` obstacles.
+    pub fn steps_for(&self, obstacles: usize) -> usize {
+        if obstacles == 0 { self.steps } else { self.obstacle_steps }
     }
 }
 
@@ -268,6 +282,7 @@ impl FlowOpt {
             robots: if p == 1 { encoded.robots } else { repeat_each(&encoded.robots, count)? },
             obstacles: encoded.obstacles.as_ref().map(|o| repeat_each(o, count)).transpose()?,
         };
+        let steps = settings.steps_for(m);
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         let x0 =
             (noise(&mut rng, &[p * count, n, self.flow.config().token_width()], &Device::Cpu)? * settings.temperature)?;
@@ -286,9 +301,8 @@ impl FlowOpt {
                 robots: if p == 1 { encoded.robots.clone() } else { rows_of(&encoded.robots)? },
                 obstacles: encoded.obstacles.as_ref().map(rows_of).transpose()?,
             };
-            let sampled = self
-                .flow
-                .sample(&rows_of(&x0)?, &part, settings.steps, settings.solver, &|| budget.spent().is_some())?;
+            let sampled =
+                self.flow.sample(&rows_of(&x0)?, &part, steps, settings.solver, &|| budget.spent().is_some())?;
             Ok(Some(sampled.ok_or(ModelError::Stopped)?))
         })?;
         let tokens = if parts.len() == 1 { parts[0].clone() } else { Tensor::cat(&parts, 0)? };

@@ -95,7 +95,7 @@ fn tiny_networks_learn_and_the_pipeline_plans_with_them() {
     let sf = Engine::new(&team, 1, Objective::filter(init_cfg.sf_smoothing), AmSettings::safety_filter()).unwrap();
     let settings = PipelineSettings {
         candidates: 6,
-        steps: 2,
+        obstacle_steps: 2,
         top_k: 3,
         settle: Settle::Smoothest,
         ..PipelineSettings::default()
@@ -157,7 +157,7 @@ fn an_untrained_initialiser_is_the_plain_start() {
     let team = flowopt_planner::problem::Team::default_for(flowopt_planner::problem::Dim::Two, 4);
     let problem = flowopt_planner::scenario::RandomScenario::new(team.clone()).generate(5).unwrap();
     let sf = Engine::new(&team, 0, Objective::Projection, AmSettings::safety_filter()).unwrap();
-    let with = PipelineSettings { candidates: 4, steps: 1, top_k: 2, ..PipelineSettings::default() };
+    let with = PipelineSettings { candidates: 4, steps: 1, obstacle_steps: 1, top_k: 2, ..PipelineSettings::default() };
     let without = PipelineSettings { use_init: false, ..with.clone() };
     let a = planner.plan(&problem, &sf, &with, 9, &Budget::unlimited()).unwrap();
     let b = planner.plan(&problem, &sf, &without, 9, &Budget::unlimited()).unwrap();

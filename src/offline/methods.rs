@@ -71,9 +71,12 @@ pub struct LearnedArgs {
     /// Candidates sampled per problem.
     #[arg(long, default_value_t = PipelineSettings::default().candidates)]
     pub candidates: usize,
-    /// Flow integration steps.
+    /// Flow integration steps for problems without obstacles.
     #[arg(long, default_value_t = PipelineSettings::default().steps)]
     pub flow_steps: usize,
+    /// Flow integration steps for problems with obstacles.
+    #[arg(long, default_value_t = PipelineSettings::default().obstacle_steps)]
+    pub obstacle_flow_steps: usize,
     /// Flow integrator.
     #[arg(long, value_enum, default_value = "euler")]
     pub solver: SolverArg,
@@ -140,6 +143,7 @@ impl LearnedArgs {
         PipelineSettings {
             candidates: self.candidates,
             steps: self.flow_steps,
+            obstacle_steps: self.obstacle_flow_steps,
             solver: match self.solver {
                 SolverArg::Euler => Solver::Euler,
                 SolverArg::Midpoint => Solver::Midpoint,

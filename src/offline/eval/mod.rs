@@ -382,7 +382,7 @@ fn header(f: &HeaderFacts) -> String {
          Methods: **baseline** is the from-scratch AM optimiser (smoothness cost, routed cold start, up to {} \
          restarts sharing an iteration cap of {}, fewer where that leaves an attempt under {} iterations per robot; \
          its robot pairs on two threads from {} robots); **flowopt** is the learned pipeline ({} flow candidates, {} \
-         {:?} steps, {reroute}top {} by primal residual, SF initialiser, safety filter on {} threads {metric} \
+         {:?} steps without obstacles and {} with, {reroute}top {} by primal residual, SF initialiser, safety filter on {} threads {metric} \
          with the penalty starting at {} and doubling every {} iterations up to {}, cap {}, {settle}); **flow-no-init** is the same with the safety filter \
          started from the flow samples (the paper's ablation). Rows a method cannot plan say why. Success is \
          the dense verdict of `flowopt_planner::metrics` (every separation kept to 1% on 4K instants, box, \
@@ -405,6 +405,7 @@ fn header(f: &HeaderFacts) -> String {
         pipeline.candidates,
         pipeline.steps,
         pipeline.solver,
+        pipeline.obstacle_steps,
         pipeline.top_k,
         pipeline.threads,
         filter.rho.initial,
