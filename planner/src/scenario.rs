@@ -257,12 +257,14 @@ pub struct ScenarioFile {
     /// Horizon (s); default 5.
     #[serde(default = "default_horizon")]
     pub horizon: f64,
-    /// Bernstein degree; default 10.
-    #[serde(default = "default_degree")]
-    pub degree: usize,
-    /// Samples; default 50.
-    #[serde(default = "default_samples")]
-    pub samples: usize,
+    /// Bernstein degree; by default 10, raised for a workspace where 50
+    /// samples would leave fast robots too far apart between samples
+    /// ([`Team::resolved_for_workspace`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub degree: Option<usize>,
+    /// Samples; by default 50, raised likewise.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub samples: Option<usize>,
     /// Robot size.
     pub robot: FileShape,
     /// Workspace box.
@@ -401,8 +403,21 @@ impl ScenarioFile {
             Some(v) => point(what, v),
             None => Ok(Vector3::zeros()),
         };
-        let team =
-            file_team(dim, self.robots.len(), &self.robot, &self.workspace, self.horizon, self.degree, self.samples)?;
+        let resolved = file_team(
+            dim,
+            self.robots.len(),
+            &self.robot,
+            &self.workspace,
+            self.horizon,
+            default_degree(),
+            default_samples(),
+        )?
+        .resolved_for_workspace();
+        let team = Team {
+            degree: self.degree.unwrap_or(resolved.degree),
+            samples: self.samples.unwrap_or(resolved.samples),
+            ..resolved
+        };
         let mut starts = Vec::with_capacity(self.robots.len());
         let mut goals = Vec::with_capacity(self.robots.len());
         for (i, r) in self.robots.iter().enumerate() {
@@ -505,6 +520,16 @@ mod tests {
         assert_eq!(p.robots(), 2);
         assert_eq!(p.starts[0].velocity.x, 0.1);
         assert_eq!(p.obstacles[0].velocity.y, -0.05);
+        assert_eq!((p.team.degree, p.team.samples), (10, 50));
+        // A workspace too big for 50 samples gets the resolution it needs,
+        // unless the file gives its own.
+        let wide = text.replace("min = [-1.0, -1.0], max = [1.0, 1.0]", "min = [-4.0, -4.0], max = [4.0, 4.0]");
+        let team = toml::from_str::<ScenarioFile>(&wide).unwrap().into_problem().unwrap().team;
+        assert_eq!((team.degree, team.samples), (17, 84));
+        assert_eq!(team, Team { degree: 10, samples: 50, ..team.clone() }.resolved_for_workspace());
+        let fixed = format!("degree = 12\n{wide}");
+        let team = toml::from_str::<ScenarioFile>(&fixed).unwrap().into_problem().unwrap().team;
+        assert_eq!((team.degree, team.samples), (12, 84));
         let bad = text.replace("goal = [0.5, 0.0]", "goal = [0.5, 0.0, 1.0]");
         let file: ScenarioFile = toml::from_str(&bad).unwrap();
         assert!(matches!(file.into_problem(), Err(ScenarioError::BadPoint { got: 3, dim: 2, .. })));
