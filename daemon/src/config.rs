@@ -173,6 +173,10 @@ pub struct LearnedConfig {
     /// Candidates refined by the safety filter.
     #[serde(default = "default_top_k")]
     pub top_k: usize,
+    /// Most sampling rounds per cold plan while none verifies (each within
+    /// the plan's deadline).
+    #[serde(default = "default_rounds")]
+    pub rounds: usize,
     /// Weight of the correction's smoothness in the safety filter's metric
     /// (`Objective::SmoothProjection`; 0: the paper's plain projection).
     #[serde(default = "default_sf_smoothing")]
@@ -190,6 +194,9 @@ fn default_flow_steps() -> usize {
 }
 fn default_obstacle_flow_steps() -> usize {
     PipelineSettings::default().obstacle_steps
+}
+fn default_rounds() -> usize {
+    PipelineSettings::default().rounds
 }
 fn default_top_k() -> usize {
     PipelineSettings::default().top_k

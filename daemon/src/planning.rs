@@ -311,6 +311,7 @@ impl TeamPlanner {
                 steps: l.flow_steps,
                 obstacle_steps: l.obstacle_flow_steps,
                 top_k: l.top_k,
+                rounds: l.rounds,
                 use_init: planner.model().has_init(),
                 // Racing the optimiser, the learned planner keeps to one core.
                 threads: 1,

@@ -45,7 +45,8 @@ fn main() -> anyhow::Result<()> {
     let filters = [0, 8].map(|m| Engine::new(&team, m, Objective::Projection, AmSettings::safety_filter()));
     let [Ok(free), Ok(cluttered)] = filters else { anyhow::bail!("building the safety filters") };
     let coding = Coding::new(&team)?;
-    let settings = PipelineSettings { top_k: 1, use_init: false, reroute: false, ..PipelineSettings::default() };
+    let settings =
+        PipelineSettings { top_k: 1, use_init: false, reroute: false, rounds: 1, ..PipelineSettings::default() };
     let (mut straight, mut sampled) = ([0usize; 2], [0usize; 2]);
     let (mut conditioning, mut spread) = (0.0, 0.0);
     for seed in 0..problems {

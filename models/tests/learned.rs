@@ -128,6 +128,27 @@ fn tiny_networks_learn_and_the_pipeline_plans_with_them() {
             assert_eq!(r.outcome.stop, out.refined[r.rank].outcome.stop);
         }
     }
+
+    // Rounds: a first round that verifies is the plan. Where the filter
+    // cannot verify (capped at one iteration), later rounds sample afresh
+    // and the plan with the lowest primal residual of them all is kept.
+    let once = PipelineSettings { rounds: 1, ..settings.clone() };
+    assert_eq!(planner.plan(&problem, &sf, &once, 1, &Budget::unlimited()).unwrap().xi(), out.xi());
+    let capped = AmSettings { max_iterations: 1, ..AmSettings::safety_filter() };
+    let capped = Engine::new(&team, 1, Objective::filter(init_cfg.sf_smoothing), capped).unwrap();
+    let rounds = PipelineSettings { rounds: 4, ..settings.clone() };
+    let mut improved = 0;
+    for seed in 0..8 {
+        let one = planner.plan(&problem, &capped, &once, seed, &Budget::unlimited()).unwrap();
+        let many = planner.plan(&problem, &capped, &rounds, seed, &Budget::unlimited()).unwrap();
+        if one.verified {
+            assert_eq!(many.xi(), one.xi(), "seed {seed}: no second round after a verified one");
+        } else {
+            assert!(many.primal() <= one.primal(), "seed {seed}: {} > {}", many.primal(), one.primal());
+            improved += usize::from(many.primal() < one.primal());
+        }
+    }
+    assert!(improved > 0, "later rounds found lower residuals");
     std::fs::remove_dir_all(&dir).unwrap();
 }
 

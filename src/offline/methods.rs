@@ -83,6 +83,10 @@ pub struct LearnedArgs {
     /// Candidates refined by the safety filter.
     #[arg(long, default_value_t = PipelineSettings::default().top_k)]
     pub top_k: usize,
+    /// Most sampling rounds per plan: while no refined candidate of a
+    /// round verifies, sample and refine as many again with fresh noise.
+    #[arg(long, default_value_t = PipelineSettings::default().rounds)]
+    pub rounds: usize,
     /// Scale of the flow's initial noise.
     #[arg(long, default_value_t = 1.0)]
     pub temperature: f64,
@@ -155,6 +159,7 @@ impl LearnedArgs {
             threads: if method == Method::Auto { 1 } else { PipelineSettings::default().threads },
             reroute: !self.no_reroute,
             settle: if self.smoothest { Settle::Smoothest } else { Settle::FirstVerified },
+            rounds: self.rounds,
         }
     }
 }

@@ -383,7 +383,8 @@ fn header(f: &HeaderFacts) -> String {
          restarts sharing an iteration cap of {}, fewer where that leaves an attempt under {} iterations per robot; \
          its robot pairs on two threads from {} robots); **flowopt** is the learned pipeline ({} flow candidates, {} \
          {:?} steps without obstacles and {} with, {reroute}top {} by primal residual, SF initialiser, safety filter on {} threads {metric} \
-         with the penalty starting at {} and doubling every {} iterations up to {}, cap {}, {settle}); **flow-no-init** is the same with the safety filter \
+         with the penalty starting at {} and doubling every {} iterations up to {}, cap {}, {settle}; up to {} rounds of \
+         sampling and refining while none verifies); **flow-no-init** is the same with the safety filter \
          started from the flow samples (the paper's ablation). Rows a method cannot plan say why. Success is \
          the dense verdict of `flowopt_planner::metrics` (every separation kept to 1% on 4K instants, box, \
          boundary conditions). Smoothness is the mean over robots of the sum of squared accelerations over \
@@ -412,6 +413,7 @@ fn header(f: &HeaderFacts) -> String {
         filter.rho.every,
         filter.rho.max,
         filter.max_iterations,
+        pipeline.rounds,
     )
 }
 
