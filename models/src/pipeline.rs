@@ -66,9 +66,10 @@ pub struct PipelineSettings {
     pub reroute: bool,
     /// Which refined candidate is returned, and so how many are refined.
     pub settle: Settle,
-    /// Most rounds [`FlowOpt::plan`] samples: while no refined candidate
-    /// of a round verifies (and the budget lasts), another `candidates`
-    /// are sampled with fresh noise and their top-k refined.
+    /// Most rounds [`FlowOpt::plan_batch`] samples a problem in: while no
+    /// refined candidate of a round verifies (and the budget lasts),
+    /// another `candidates` are sampled with fresh noise and their top-k
+    /// refined.
     pub rounds: usize,
 }
 
@@ -368,36 +369,6 @@ impl FlowOpt {
         seed: u64,
         budget: &Budget<'_>,
     ) -> Result<Vec<PipelineOutcome>, ModelError> {
-        let mut outcomes = self.plan_round(queries, sf, settings, seed, budget)?;
-        for round in 1..settings.rounds.max(1) {
-            let again: Vec<usize> = (0..outcomes.len()).filter(|&q| !outcomes[q].verified).collect();
-            if again.is_empty() || budget.spent().is_some() {
-                break;
-            }
-            let retried: Vec<Query<'_>> = again.iter().map(|&q| queries[q]).collect();
-            let fresh = self.plan_round(&retried, sf, settings, round_seed(seed, round), budget)?;
-            for (&q, mut outcome) in again.iter().zip(fresh) {
-                let kept = &outcomes[q];
-                outcome.times.add(&kept.times);
-                if outcome.verified || outcome.primal() < kept.primal() {
-                    outcomes[q] = outcome;
-                } else {
-                    outcomes[q].times = outcome.times;
-                }
-            }
-        }
-        Ok(outcomes)
-    }
-
-    /// One round of [`Self::plan_batch`]: sample, rank, initialise, filter.
-    fn plan_round(
-        &self,
-        queries: &[Query<'_>],
-        sf: &Engine,
-        settings: &PipelineSettings,
-        seed: u64,
-        budget: &Budget<'_>,
-    ) -> Result<Vec<PipelineOutcome>, ModelError> {
         let Some(first) = queries.first() else { return Ok(Vec::new()) };
         for q in queries {
             self.check(&q.enforced.team)?;
@@ -420,6 +391,38 @@ impl FlowOpt {
                 ));
             }
         }
+        let mut outcomes = self.plan_round(queries, sf, settings, seed, budget)?;
+        for round in 1..settings.rounds.max(1) {
+            let again: Vec<usize> = (0..outcomes.len()).filter(|&q| !outcomes[q].verified).collect();
+            if again.is_empty() || budget.spent().is_some() {
+                break;
+            }
+            let retried: Vec<Query<'_>> = again.iter().map(|&q| queries[q]).collect();
+            let fresh = self.plan_round(&retried, sf, settings, round_seed(seed, round), budget)?;
+            for (&q, mut outcome) in again.iter().zip(fresh) {
+                let kept = &outcomes[q];
+                outcome.times.add(&kept.times);
+                if outcome.verified || outcome.primal() < kept.primal() {
+                    outcomes[q] = outcome;
+                } else {
+                    outcomes[q].times = outcome.times;
+                }
+            }
+        }
+        Ok(outcomes)
+    }
+
+    /// One round of [`Self::plan_batch`] (which validated the queries):
+    /// sample, rank, initialise, filter.
+    fn plan_round(
+        &self,
+        queries: &[Query<'_>],
+        sf: &Engine,
+        settings: &PipelineSettings,
+        seed: u64,
+        budget: &Budget<'_>,
+    ) -> Result<Vec<PipelineOutcome>, ModelError> {
+        let Some(first) = queries.first() else { return Ok(Vec::new()) };
         let started = Instant::now();
         let count = settings.candidates.max(1);
         let top_k = settings.top_k.clamp(1, count);

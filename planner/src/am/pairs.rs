@@ -43,15 +43,22 @@ pub(crate) const KEEP_MIN_ROBOTS: usize = 128;
 pub(crate) struct Candidate {
     pub i: u32,
     pub j: u32,
-    pub from: u16,
-    pub to: u16,
+    pub from: u32,
+    pub to: u32,
 }
 
 impl Candidate {
     /// The pair `(i, j)` at every one of `count` instants.
     pub fn whole(i: u32, j: u32, count: usize) -> Self {
-        Self { i, j, from: 0, to: count as u16 }
+        Self { i, j, from: 0, to: instant(count) }
     }
+}
+
+/// An instant (or segment) index as stored in a [`Candidate`]; a grid of
+/// more instants than that holds cannot be checked (a truncated index
+/// would miss contacts), so it panics rather than wrap.
+fn instant(k: usize) -> u32 {
+    u32::try_from(k).expect("a grid of at most u32::MAX instants")
 }
 
 /// The broad phase's working memory.
@@ -66,7 +73,7 @@ pub(crate) struct BroadPhase {
     found: Vec<u64>,
     /// Per pair bit of `found`, once set: its first and last overlapping
     /// segment (stale values where the bit is clear).
-    segments: Vec<[u16; 2]>,
+    segments: Vec<[u32; 2]>,
     /// Candidate pairs, sorted.
     pairs: Vec<Candidate>,
     /// The positions the pairs were found from (empty before the first).
@@ -153,10 +160,10 @@ impl BroadPhase {
                         let (word, mask) = (&mut self.found[bit / 64], 1 << (bit % 64));
                         // Segments go in order: the first sets both ends.
                         if *word & mask == 0 {
-                            self.segments[bit][0] = s as u16;
+                            self.segments[bit][0] = instant(s);
                         }
                         *word |= mask;
-                        self.segments[bit][1] = s as u16;
+                        self.segments[bit][1] = instant(s);
                     }
                 }
             }
@@ -166,12 +173,12 @@ impl BroadPhase {
             let mut bits = word;
             while bits != 0 {
                 let bit = w * 64 + bits.trailing_zeros() as usize;
-                let [first, last] = self.segments[bit].map(usize::from);
+                let [first, last] = self.segments[bit].map(|s| s as usize);
                 self.pairs.push(Candidate {
                     i: (bit / n) as u32,
                     j: (bit % n) as u32,
-                    from: (first * SEGMENT) as u16,
-                    to: ((last + 1) * SEGMENT).min(count) as u16,
+                    from: instant(first * SEGMENT),
+                    to: instant(((last + 1) * SEGMENT).min(count)),
                 });
                 bits &= bits - 1;
             }

@@ -728,7 +728,7 @@ impl Check<'_> {
     /// extra instants lie outside the candidate's (where its boxes do not
     /// overlap, so they cannot violate even with their targets cut short).
     fn instants(&self, pair: Candidate) -> Range<usize> {
-        usize::from(pair.from).saturating_sub(1)..(usize::from(pair.to) + 1).min(self.count)
+        (pair.from as usize).saturating_sub(1)..(pair.to as usize + 1).min(self.count)
     }
 
     /// Pushes apart every violating pair of `pairs` (`i < j`, in order),
