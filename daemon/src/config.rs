@@ -161,9 +161,12 @@ pub struct LearnedConfig {
     /// the samples).
     #[serde(default)]
     pub init: Option<PathBuf>,
-    /// Candidates sampled per cold plan.
+    /// Candidates sampled per cold plan without obstacles.
     #[serde(default = "default_candidates")]
     pub candidates: usize,
+    /// Candidates sampled per cold plan with obstacles.
+    #[serde(default = "default_obstacle_candidates")]
+    pub obstacle_candidates: usize,
     /// Flow integration steps (Euler) for problems without obstacles.
     #[serde(default = "default_flow_steps")]
     pub flow_steps: usize,
@@ -188,6 +191,9 @@ fn default_sf_smoothing() -> f64 {
 }
 fn default_candidates() -> usize {
     PipelineSettings::default().candidates
+}
+fn default_obstacle_candidates() -> usize {
+    PipelineSettings::default().obstacle_candidates
 }
 fn default_flow_steps() -> usize {
     PipelineSettings::default().steps

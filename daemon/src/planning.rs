@@ -308,6 +308,7 @@ impl TeamPlanner {
             let filters = planner.filters(&team, filter_settings, max)?;
             let settings = PipelineSettings {
                 candidates: l.candidates,
+                obstacle_candidates: l.obstacle_candidates,
                 steps: l.flow_steps,
                 obstacle_steps: l.obstacle_flow_steps,
                 top_k: l.top_k,

@@ -47,6 +47,12 @@ fn main() -> anyhow::Result<()> {
     let coding = Coding::new(&team)?;
     let settings =
         PipelineSettings { top_k: 1, use_init: false, reroute: false, rounds: 1, ..PipelineSettings::default() };
+    // The policy sees the obstacles or not; everything else is the same.
+    let blind_settings = PipelineSettings {
+        candidates: settings.obstacle_candidates,
+        steps: settings.obstacle_steps,
+        ..settings.clone()
+    };
     let (mut straight, mut sampled) = ([0usize; 2], [0usize; 2]);
     let (mut conditioning, mut spread) = (0.0, 0.0);
     for seed in 0..problems {
@@ -55,7 +61,7 @@ fn main() -> anyhow::Result<()> {
         let with = flow.plan(&problem, &cluttered, &settings, seed, &Budget::unlimited())?.samples;
         let mut blind = problem.clone();
         blind.obstacles.clear();
-        let without = flow.plan(&blind, &free, &settings, seed, &Budget::unlimited())?.samples;
+        let without = flow.plan(&blind, &free, &blind_settings, seed, &Budget::unlimited())?.samples;
         for (k, level) in [0.6, 1.0].into_iter().enumerate() {
             straight[k] += robots_within(&problem, &reference, level);
             sampled[k] += with.iter().map(|x| robots_within(&problem, x, level)).sum::<usize>();
@@ -64,7 +70,7 @@ fn main() -> anyhow::Result<()> {
         spread += with.windows(2).map(|w| mean_abs(&w[0], &w[1])).sum::<f64>() / (with.len() - 1) as f64;
     }
     let per = |x: usize, count: usize| x as f64 / (problems as usize * count) as f64;
-    let candidates = settings.candidates;
+    let candidates = settings.obstacle_candidates;
     println!("robots per problem through an obstacle (scaled distance < 1; < 0.6 in brackets):");
     println!("  straight curves {:.2} ({:.2})", per(straight[1], 1), per(straight[0], 1));
     println!("  flow samples    {:.2} ({:.2})", per(sampled[1], candidates), per(sampled[0], candidates));

@@ -347,21 +347,42 @@ pub(crate) fn run_loop(
     })
 }
 
-/// Trains the flow policy on `data` and writes `out` (weights) and
-/// `out.json` (model card); the checkpoint lives in `checkpoint_dir`.
+/// Where a flow policy's training starts.
+#[derive(Debug, Clone, PartialEq)]
+pub enum FlowStart {
+    /// Fresh weights of this configuration, statistics from the data.
+    Fresh(FlowConfig),
+    /// The weights, configuration and statistics of a trained policy
+    /// (fine-tuning; the data is normalised with its statistics).
+    From(PathBuf),
+}
+
+/// Trains the flow policy on `data` from `start` and writes `out` (weights)
+/// and `out.json` (model card, naming the weights it started from); the
+/// checkpoint lives in `checkpoint_dir`.
 pub fn train_flow(
     data: &[(PathBuf, Dataset)],
-    model: &FlowConfig,
+    start: &FlowStart,
     cfg: &TrainConfig,
     out: &Path,
     checkpoint_dir: &Path,
     progress: impl FnMut(usize, f64, Option<f64>),
 ) -> Result<TrainReport, ModelError> {
-    let stats = statistics(data)?;
-    let splits = split(data, &stats, cfg.validation_fraction)?;
     let mut vars = VarMap::new();
-    let net = FlowModel::new(VarBuilder::from_varmap(&vars, DType::F32, &Device::Cpu), model)?;
-    initialise(&vars, cfg.seed)?;
+    let (model, stats, inputs) = match start {
+        FlowStart::Fresh(model) => (model.clone(), statistics(data)?, Vec::new()),
+        FlowStart::From(path) => {
+            let loaded = crate::weights::load::<FlowConfig>(path, "flow")?;
+            let hash = crate::dataset::hash_files(std::slice::from_ref(path))?;
+            (loaded.config, loaded.stats, vec![(path.display().to_string(), hash)])
+        }
+    };
+    let net = FlowModel::new(VarBuilder::from_varmap(&vars, DType::F32, &Device::Cpu), &model)?;
+    match start {
+        FlowStart::Fresh(_) => initialise(&vars, cfg.seed)?,
+        FlowStart::From(path) => vars.load(path)?,
+    }
+    let splits = split(data, &stats, cfg.validation_fraction)?;
     let report = run_loop(
         "flow",
         &mut vars,
@@ -378,8 +399,8 @@ pub fn train_flow(
         },
         progress,
     )?;
-    save(out, &vars, "flow", model, &stats)?;
-    write_card(out, "flow", model, cfg, data, Vec::new(), &splits, &report)?;
+    save(out, &vars, "flow", &model, &stats)?;
+    write_card(out, "flow", &model, cfg, data, inputs, &splits, &report)?;
     Ok(report)
 }
 

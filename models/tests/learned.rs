@@ -9,10 +9,11 @@ use flowopt_models::dataset::{DatagenConfig, Dataset};
 use flowopt_models::flow::FlowConfig;
 use flowopt_models::init::InitConfig;
 use flowopt_models::pipeline::{FlowOpt, PipelineSettings, Settle};
-use flowopt_models::train::{InitData, TrainConfig, train_flow, train_init};
+use flowopt_models::train::{FlowStart, InitData, TrainConfig, train_flow, train_init};
 use flowopt_planner::am::{AmSettings, Budget, Engine, Objective, Stop};
 use flowopt_planner::metrics::Metrics;
 use flowopt_planner::plan::JointPlan;
+use flowopt_planner::problem::Problem;
 use flowopt_planner::scenes::Family;
 
 fn scratch(name: &str) -> PathBuf {
@@ -56,7 +57,8 @@ fn tiny_networks_learn_and_the_pipeline_plans_with_them() {
     let (_config, data) = tiny_data(&dir.join("data"));
     let flow_cfg = FlowConfig { width: 32, heads: 2, layers: 1, hidden: 32, time_freqs: 8, ..FlowConfig::small(2, 11) };
     let flow_path = dir.join("flow.safetensors");
-    let report = train_flow(&data, &flow_cfg, &train_config(40), &flow_path, &dir.join("ck"), |_, _, _| {}).unwrap();
+    let fresh = FlowStart::Fresh(flow_cfg);
+    let report = train_flow(&data, &fresh, &train_config(40), &flow_path, &dir.join("ck"), |_, _, _| {}).unwrap();
     assert!(
         report.validation_loss < report.first_validation_loss,
         "flow validation loss {} -> {}",
@@ -64,6 +66,22 @@ fn tiny_networks_learn_and_the_pipeline_plans_with_them() {
         report.validation_loss
     );
     assert!(flow_path.with_extension("json").exists(), "a model card is written");
+
+    // Fine-tuning from those weights starts where they ended (the same
+    // validation loss before its first step: same weights, statistics and
+    // held-out noise), lowers its loss, and names its start in the card.
+    let tuned_path = dir.join("tuned.safetensors");
+    let from = FlowStart::From(flow_path.clone());
+    let tuned = train_flow(&data, &from, &train_config(20), &tuned_path, &dir.join("ck-tuned"), |_, _, _| {}).unwrap();
+    assert!(
+        (tuned.first_validation_loss - report.validation_loss).abs() < 1e-5,
+        "fine-tuning starts from the trained weights: {} against {}",
+        tuned.first_validation_loss,
+        report.validation_loss
+    );
+    assert!(tuned.validation_loss < tuned.first_validation_loss);
+    let card = std::fs::read_to_string(tuned_path.with_extension("json")).unwrap();
+    assert!(card.contains(&flow_path.display().to_string()), "{card}");
 
     // Through the smoothness-weighted SF: its linear term is not the sample.
     let init_cfg =
@@ -94,7 +112,8 @@ fn tiny_networks_learn_and_the_pipeline_plans_with_them() {
     let problem = flowopt_planner::scenario::RandomScenario::new(team.clone()).with_obstacles(1).generate(3).unwrap();
     let sf = Engine::new(&team, 1, Objective::filter(init_cfg.sf_smoothing), AmSettings::safety_filter()).unwrap();
     let settings = PipelineSettings {
-        candidates: 6,
+        candidates: 5,
+        obstacle_candidates: 6,
         obstacle_steps: 2,
         top_k: 3,
         settle: Settle::Smoothest,
@@ -102,6 +121,10 @@ fn tiny_networks_learn_and_the_pipeline_plans_with_them() {
     };
     let out = planner.plan(&problem, &sf, &settings, 1, &Budget::unlimited()).unwrap();
     assert_eq!((out.samples.len(), out.refined.len()), (6, 3));
+    // The same robots without the obstacle: `candidates` samples.
+    let free = Problem { obstacles: Vec::new(), ..problem.clone() };
+    let free_sf = Engine::new(&team, 0, Objective::filter(init_cfg.sf_smoothing), AmSettings::safety_filter()).unwrap();
+    assert_eq!(planner.plan(&free, &free_sf, &settings, 1, &Budget::unlimited()).unwrap().samples.len(), 5);
     assert!(out.refined.windows(2).all(|w| w[0].sample_primal <= w[1].sample_primal), "ranked by primal residual");
     let m = Metrics::measure(&problem, &JointPlan::new(&team, out.xi().to_vec()));
     assert!(m.boundary_error < 1e-6, "every plan meets the boundary conditions: {}", m.boundary_error);
@@ -158,7 +181,8 @@ fn an_untrained_initialiser_is_the_plain_start() {
     let (_config, data) = tiny_data(&dir.join("data"));
     let flow_cfg = FlowConfig { width: 16, heads: 2, layers: 1, hidden: 16, time_freqs: 4, ..FlowConfig::small(2, 11) };
     let flow_path = dir.join("flow.safetensors");
-    train_flow(&data, &flow_cfg, &train_config(2), &flow_path, &dir.join("ck"), |_, _, _| {}).unwrap();
+    train_flow(&data, &FlowStart::Fresh(flow_cfg), &train_config(2), &flow_path, &dir.join("ck"), |_, _, _| {})
+        .unwrap();
     // Zero training steps: the initialiser keeps its zero output heads.
     let init_path = dir.join("init.safetensors");
     let init_cfg = InitConfig { width: 16, heads: 2, hidden: 16, unroll: 2, ..InitConfig::small(2, 11) };

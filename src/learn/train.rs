@@ -8,7 +8,7 @@ use clap::{Args, Subcommand};
 use flowopt_models::dataset::Dataset;
 use flowopt_models::flow::FlowConfig;
 use flowopt_models::init::InitConfig;
-use flowopt_models::train::{InitData, TrainConfig, TrainReport, train_flow, train_init};
+use flowopt_models::train::{FlowStart, InitData, TrainConfig, TrainReport, train_flow, train_init};
 use indicatif::{ProgressBar, ProgressStyle};
 
 /// Train a network of the learned planner.
@@ -118,6 +118,10 @@ struct FlowArgs {
     /// MLP hidden width.
     #[arg(long, default_value_t = 256)]
     hidden: usize,
+    /// Fine-tune these trained weights (their architecture and
+    /// normalisation; the architecture flags above are then unused).
+    #[arg(long, value_name = "WEIGHTS")]
+    from: Option<PathBuf>,
 }
 
 #[derive(Debug, Args)]
@@ -156,17 +160,20 @@ pub fn run(args: TrainArgs) -> Result<()> {
         Network::Flow(a) => {
             let data = a.common.datasets()?;
             let dim = data.first().map_or(2, |(_, d)| d.manifest.config.dim);
-            let model = FlowConfig {
-                width: a.width,
-                layers: a.layers,
-                heads: a.heads,
-                hidden: a.hidden,
-                ..FlowConfig::small(dim, flowopt_planner::problem::Team::DEFAULT_DEGREE + 1)
+            let start = match a.from {
+                Some(path) => FlowStart::From(path),
+                None => FlowStart::Fresh(FlowConfig {
+                    width: a.width,
+                    layers: a.layers,
+                    heads: a.heads,
+                    hidden: a.hidden,
+                    ..FlowConfig::small(dim, flowopt_planner::problem::Team::DEFAULT_DEGREE + 1)
+                }),
             };
             let checkpoints = a.common.checkpoints.clone().unwrap_or_else(|| PathBuf::from("runs/flow"));
             let (bar, progress) = a.common.progress("flow")?;
             let started = Instant::now();
-            let report = train_flow(&data, &model, &a.common.config(), &a.out, &checkpoints, progress)
+            let report = train_flow(&data, &start, &a.common.config(), &a.out, &checkpoints, progress)
                 .context("training the flow policy")?;
             bar.finish_and_clear();
             finished(&a.out, &report, started);

@@ -68,9 +68,12 @@ pub struct LearnedArgs {
     /// models/weights/init3d.safetensors in 3D].
     #[arg(long)]
     pub init_weights: Option<PathBuf>,
-    /// Candidates sampled per problem.
+    /// Candidates sampled per problem without obstacles.
     #[arg(long, default_value_t = PipelineSettings::default().candidates)]
     pub candidates: usize,
+    /// Candidates sampled per problem with obstacles.
+    #[arg(long, default_value_t = PipelineSettings::default().obstacle_candidates)]
+    pub obstacle_candidates: usize,
     /// Flow integration steps for problems without obstacles.
     #[arg(long, default_value_t = PipelineSettings::default().steps)]
     pub flow_steps: usize,
@@ -146,6 +149,7 @@ impl LearnedArgs {
     pub fn settings(&self, method: Method) -> PipelineSettings {
         PipelineSettings {
             candidates: self.candidates,
+            obstacle_candidates: self.obstacle_candidates,
             steps: self.flow_steps,
             obstacle_steps: self.obstacle_flow_steps,
             solver: match self.solver {

@@ -381,8 +381,8 @@ fn header(f: &HeaderFacts) -> String {
          wall-clock times per instance.\n\n\
          Methods: **baseline** is the from-scratch AM optimiser (smoothness cost, routed cold start, up to {} \
          restarts sharing an iteration cap of {}, fewer where that leaves an attempt under {} iterations per robot; \
-         its robot pairs on two threads from {} robots); **flowopt** is the learned pipeline ({} flow candidates, {} \
-         {:?} steps without obstacles and {} with, {reroute}top {} by primal residual, SF initialiser, safety filter on {} threads {metric} \
+         its robot pairs on two threads from {} robots); **flowopt** is the learned pipeline ({} flow candidates in {} \
+         {:?} steps without obstacles, {} in {} with, {reroute}top {} by primal residual, SF initialiser, safety filter on {} threads {metric} \
          with the penalty starting at {} and doubling every {} iterations up to {}, cap {}, {settle}; up to {} rounds of \
          sampling and refining while none verifies); **flow-no-init** is the same with the safety filter \
          started from the flow samples (the paper's ablation). Rows a method cannot plan say why. Success is \
@@ -406,6 +406,7 @@ fn header(f: &HeaderFacts) -> String {
         pipeline.candidates,
         pipeline.steps,
         pipeline.solver,
+        pipeline.obstacle_candidates,
         pipeline.obstacle_steps,
         pipeline.top_k,
         pipeline.threads,
@@ -555,7 +556,13 @@ fn throughput(args: &EvalArgs, command: &str) -> Result<String> {
     const CANDIDATES: usize = 10;
     const REFINED: usize = 5;
     // Every one of the best REFINED is refined (the paper's selection).
-    let learned = LearnedArgs { candidates: CANDIDATES, top_k: REFINED, smoothest: true, ..args.learned.clone() };
+    let learned = LearnedArgs {
+        candidates: CANDIDATES,
+        obstacle_candidates: CANDIDATES,
+        top_k: REFINED,
+        smoothest: true,
+        ..args.learned.clone()
+    };
     let mut planner = Planner::new(Overrides::default(), Some(learned.clone()));
     let team = Team::default_for(Dim::Two, 16);
     let sampling = format!("sampling {} candidates ms", PROBLEMS * CANDIDATES);
