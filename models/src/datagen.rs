@@ -1,19 +1,67 @@
-//! `flowopt datagen`: solve seeded instances of a scene family with the from-scratch
-//! optimiser on every core and keep the successful solutions as a
-//! [`crate::dataset`]. Shards are written atomically and skipped when
-//! present, so an interrupted run resumes where it stopped.
+//! `flowopt datagen`: solve seeded instances of a scene family with the
+//! from-scratch optimiser or the learned pipeline ([`DataSolver`]) on every
+//! core and keep the successful solutions as a [`crate::dataset`]. Shards
+//! are written atomically and skipped when present, so an interrupted run
+//! resumes where it stopped.
 
 use std::collections::BTreeMap;
 use std::path::Path;
 
 use candle_core::{Device, Tensor};
-use flowopt_planner::am::{AmSettings, Engine, Objective};
+use flowopt_planner::am::{AmSettings, Budget, Engine, Objective};
 use flowopt_planner::metrics::Metrics;
 use flowopt_planner::plan::JointPlan;
+use flowopt_planner::problem::{Problem, Team};
 
 use crate::ModelError;
 use crate::coding::{Coding, conditions, obstacle_width, robot_width};
-use crate::dataset::{DatagenConfig, FORMAT, MANIFEST, Manifest, ShardEntry, VERSION, hash_files};
+use crate::dataset::{DataSolver, DatagenConfig, FORMAT, MANIFEST, Manifest, ShardEntry, VERSION, hash_files};
+use crate::pipeline::{DEFAULT_SF_SMOOTHING, LearnedPlanner, PipelineSettings};
+
+/// What solves the instances, loaded.
+enum Solving {
+    /// The from-scratch optimiser.
+    Optimiser,
+    /// The learned pipeline, one thread per instance.
+    Pipeline(Box<LearnedPlanner>),
+}
+
+impl Solving {
+    fn new(solver: &DataSolver) -> Result<Self, ModelError> {
+        Ok(match solver {
+            DataSolver::Optimiser => Solving::Optimiser,
+            DataSolver::Pipeline { flow, init } => {
+                let init = init.as_ref().map(|i| i.checked()).transpose()?;
+                Solving::Pipeline(Box::new(LearnedPlanner::load(flow.checked()?, init, DEFAULT_SF_SMOOTHING)?))
+            }
+        })
+    }
+
+    /// The engine that plans (the optimiser) or repairs (the pipeline's
+    /// safety filter) for `team` with `obstacles` obstacles.
+    fn engine(&self, team: &Team, obstacles: usize) -> Result<Engine, ModelError> {
+        Ok(match self {
+            Solving::Optimiser => Engine::new(team, obstacles, Objective::smoothness(), AmSettings::optimiser())?,
+            Solving::Pipeline(p) => {
+                p.model().check(team)?;
+                Engine::new(team, obstacles, p.sf_objective(), AmSettings::safety_filter())?
+            }
+        })
+    }
+
+    /// The coefficients of `problem`'s plan (seeded by `seed`), or `None`
+    /// where the pipeline verified none.
+    fn solve(&self, engine: &Engine, problem: &Problem, seed: u64) -> Result<Option<Vec<f64>>, ModelError> {
+        match self {
+            Solving::Optimiser => Ok(Some(engine.solve(problem)?.state.xi)),
+            Solving::Pipeline(p) => {
+                let settings = PipelineSettings { threads: 1, ..PipelineSettings::default() };
+                let out = p.model().plan(problem, engine, &settings, seed, &Budget::unlimited())?;
+                Ok(out.verified.then(|| out.xi().to_vec()))
+            }
+        }
+    }
+}
 
 /// One kept instance.
 struct Solved {
@@ -48,6 +96,7 @@ pub fn generate(
     } else {
         write_json(&config_path, config)?;
     }
+    let solving = Solving::new(&config.solver)?;
     let mut shards = Vec::new();
     for &robots in &config.robots {
         for obstacles in config.obstacle_counts(robots)? {
@@ -55,7 +104,7 @@ pub fn generate(
             // an instance in another one gets an engine of its own).
             let team = config.problem(robots, obstacles, config.seed(robots, obstacles, 0))?.team;
             let coding = Coding::new(&team)?;
-            let engine = Engine::new(&team, obstacles, Objective::smoothness(), AmSettings::optimiser())?;
+            let engine = solving.engine(&team, obstacles)?;
             for shard in 0..config.shards_per_bucket() {
                 let file = DatagenConfig::shard_name(robots, obstacles, shard);
                 let first = shard * config.shard_size;
@@ -64,8 +113,9 @@ pub fn generate(
                 let kept = if path.exists() {
                     count_kept(&path)?
                 } else {
+                    let bucket = (robots, obstacles);
                     let solved =
-                        solve_range(config, &engine, &coding, (robots, obstacles), first..first + attempted, threads)?;
+                        solve_range(config, &solving, &engine, &coding, bucket, first..first + attempted, threads)?;
                     write_shard(&path, config.dim, robots, obstacles, &solved)?;
                     solved.len()
                 };
@@ -91,6 +141,7 @@ pub fn generate(
 /// the successes in seed order.
 fn solve_range(
     config: &DatagenConfig,
+    solving: &Solving,
     engine: &Engine,
     coding: &Coding,
     (robots, obstacles): (usize, usize),
@@ -110,10 +161,10 @@ fn solve_range(
         let engine = if problem.team == *engine.team() {
             engine
         } else {
-            own = Engine::new(&problem.team, obstacles, Objective::smoothness(), AmSettings::optimiser())?;
+            own = solving.engine(&problem.team, obstacles)?;
             &own
         };
-        let xi = engine.solve(&problem)?.state.xi;
+        let Some(xi) = solving.solve(engine, &problem, seed)? else { return Ok(None) };
         let metrics = Metrics::measure(&problem, &JointPlan::new(&problem.team, xi.clone()));
         if !metrics.success(problem.team.separation().0) {
             return Ok(None);
@@ -181,6 +232,7 @@ mod tests {
             per_bucket: 3,
             shard_size: 2,
             first_seed: 1_000_000_000,
+            solver: DataSolver::Optimiser,
         };
         let mut attempted = 0;
         let manifest = generate(&config, &dir, 2, |n| attempted += n).unwrap();
@@ -221,6 +273,7 @@ mod tests {
                 per_bucket: 2,
                 shard_size: 2,
                 first_seed: 1_000_000_000,
+                solver: DataSolver::Optimiser,
             };
             let manifest = generate(&config, &dir, 1, |_| {}).unwrap();
             assert_eq!(manifest.shards.len(), 1, "{family:?}: one bucket; the family places its own obstacles");

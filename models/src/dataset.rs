@@ -1,5 +1,6 @@
-//! The training dataset: optimiser solutions of seeded instances of a scene
-//! family (`flowopt_planner::scenes`; the random benchmark by default),
+//! The training dataset: verified solutions of seeded instances of a scene
+//! family (`flowopt_planner::scenes`; the random benchmark by default) by
+//! the from-scratch optimiser or by the learned pipeline ([`DataSolver`]),
 //! stored as safetensors shards, one bucket per (team size, obstacle count),
 //! with a JSON manifest that records the generating configuration.
 //!
@@ -55,6 +56,60 @@ pub struct DatagenConfig {
     /// Seeds are `first_seed + 10^7 n + 10^6 m + index`; test instances use
     /// small seeds, so training never sees them.
     pub first_seed: u64,
+    /// Who solves the instances (the optimiser in datasets written before
+    /// this choice).
+    #[serde(default)]
+    pub solver: DataSolver,
+}
+
+/// Who solves a dataset's instances; only verified solutions that pass the
+/// success verdict are kept either way.
+#[derive(Debug, Clone, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum DataSolver {
+    /// The from-scratch optimiser (`AmSettings::optimiser`).
+    #[default]
+    Optimiser,
+    /// The learned pipeline with its default settings, on one thread per
+    /// instance, its flow noise seeded by the instance's seed: solutions
+    /// where the optimiser fails (the obstacle field), to train on.
+    Pipeline {
+        /// The flow policy.
+        flow: WeightFile,
+        /// The SF initialiser, if any.
+        init: Option<WeightFile>,
+    },
+}
+
+/// A weight file and the hash of its contents when the dataset began (a
+/// resumed run refuses weights that changed since).
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct WeightFile {
+    /// Where it is.
+    pub path: PathBuf,
+    /// sha256 of its contents.
+    pub sha256: String,
+}
+
+impl WeightFile {
+    /// `path` with the hash of its contents now.
+    pub fn hashed(path: &Path) -> Result<Self, ModelError> {
+        let path = path.to_path_buf();
+        Ok(Self { sha256: hash_files(std::slice::from_ref(&path))?, path })
+    }
+
+    /// Its path, once its contents are checked to be those hashed.
+    pub fn checked(&self) -> Result<&Path, ModelError> {
+        let now = hash_files(std::slice::from_ref(&self.path))?;
+        if now != self.sha256 {
+            return Err(ModelError::Config(format!(
+                "{} changed since the dataset began (sha256 {} there, {now} now)",
+                self.path.display(),
+                self.sha256
+            )));
+        }
+        Ok(&self.path)
+    }
 }
 
 impl DatagenConfig {

@@ -4,11 +4,13 @@
 
 use std::path::{Path, PathBuf};
 
+use flowopt_models::ModelError;
+use flowopt_models::coding::Coding;
 use flowopt_models::datagen::generate;
-use flowopt_models::dataset::{DatagenConfig, Dataset};
+use flowopt_models::dataset::{DataSolver, DatagenConfig, Dataset, WeightFile};
 use flowopt_models::flow::FlowConfig;
 use flowopt_models::init::InitConfig;
-use flowopt_models::pipeline::{FlowOpt, PipelineSettings, Settle};
+use flowopt_models::pipeline::{DEFAULT_SF_SMOOTHING, FlowOpt, PipelineSettings, Settle};
 use flowopt_models::train::{FlowStart, InitData, TrainConfig, train_flow, train_init};
 use flowopt_planner::am::{AmSettings, Budget, Engine, Objective, Stop};
 use flowopt_planner::metrics::Metrics;
@@ -32,6 +34,7 @@ fn tiny_data(dir: &Path) -> (DatagenConfig, Vec<(PathBuf, Dataset)>) {
         per_bucket: 24,
         shard_size: 24,
         first_seed: 1_000_000_000,
+        solver: DataSolver::Optimiser,
     };
     generate(&config, dir, 2, |_| {}).unwrap();
     (config, vec![(dir.to_path_buf(), Dataset::load(dir).unwrap())])
@@ -54,7 +57,7 @@ fn train_config(steps: usize) -> TrainConfig {
 #[test]
 fn tiny_networks_learn_and_the_pipeline_plans_with_them() {
     let dir = scratch("all");
-    let (_config, data) = tiny_data(&dir.join("data"));
+    let (config, data) = tiny_data(&dir.join("data"));
     let flow_cfg = FlowConfig { width: 32, heads: 2, layers: 1, hidden: 32, time_freqs: 8, ..FlowConfig::small(2, 11) };
     let flow_path = dir.join("flow.safetensors");
     let fresh = FlowStart::Fresh(flow_cfg);
@@ -172,6 +175,42 @@ fn tiny_networks_learn_and_the_pipeline_plans_with_them() {
         }
     }
     assert!(improved > 0, "later rounds found lower residuals");
+
+    // A dataset solved by that pipeline keeps its verified plans, seeded by
+    // the instances' seeds; weights that changed since the dataset began
+    // are refused.
+    let piped = DatagenConfig {
+        per_bucket: 4,
+        shard_size: 4,
+        solver: DataSolver::Pipeline {
+            flow: WeightFile::hashed(&flow_path).unwrap(),
+            init: Some(WeightFile::hashed(&init_path).unwrap()),
+        },
+        ..config.clone()
+    };
+    let manifest = generate(&piped, &dir.join("piped"), 2, |_| {}).unwrap();
+    assert!(manifest.kept > 0, "the pipeline verifies 4-robot instances");
+    let solved = Dataset::load(&dir.join("piped")).unwrap();
+    let bucket = solved.buckets.iter().find(|b| !b.is_empty()).unwrap();
+    let seed = bucket.seeds[0];
+    let instance = piped.problem(bucket.robots, bucket.obstacles, seed).unwrap();
+    let filter =
+        Engine::new(&team, bucket.obstacles, Objective::filter(DEFAULT_SF_SMOOTHING), AmSettings::safety_filter())
+            .unwrap();
+    let one_thread = PipelineSettings { threads: 1, ..PipelineSettings::default() };
+    let planned = planner.plan(&instance, &filter, &one_thread, seed, &Budget::unlimited()).unwrap();
+    assert!(planned.verified);
+    let coding = Coding::new(&team).unwrap();
+    let expected = coding.encode(&coding.reference(&instance), planned.xi());
+    let stored = bucket.tokens.get(0).unwrap().flatten_all().unwrap().to_vec1::<f32>().unwrap();
+    assert_eq!(stored, expected, "the stored plan is the pipeline's");
+    let changed = DataSolver::Pipeline {
+        flow: WeightFile { path: init_path.clone(), ..WeightFile::hashed(&flow_path).unwrap() },
+        init: None,
+    };
+    let refused = generate(&DatagenConfig { solver: changed, ..piped }, &dir.join("changed"), 1, |_| {});
+    assert!(matches!(refused, Err(ModelError::Config(_))), "{refused:?}");
+
     std::fs::remove_dir_all(&dir).unwrap();
 }
 

@@ -1,17 +1,19 @@
-//! `flowopt datagen`: training data from the from-scratch optimiser.
+//! `flowopt datagen`: training data from the from-scratch optimiser or the
+//! learned pipeline.
 
 use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::{Context, Result};
-use clap::Args;
+use clap::{Args, ValueEnum};
 use flowopt_models::datagen::generate;
-use flowopt_models::dataset::DatagenConfig;
+use flowopt_models::dataset::{DataSolver, DatagenConfig, WeightFile};
 use indicatif::{ProgressBar, ProgressStyle};
 
 use crate::offline::instances::FamilyArg;
+use crate::offline::methods::shipped_weights;
 
-/// Generate a training dataset of optimiser solutions (resumable).
+/// Generate a training dataset of verified solutions (resumable).
 #[derive(Debug, Args)]
 pub struct DatagenArgs {
     /// Dataset directory (created; an interrupted run resumes in it).
@@ -45,11 +47,32 @@ pub struct DatagenArgs {
     /// Worker threads.
     #[arg(long, default_value_t = 2)]
     threads: usize,
+    /// Who solves the instances.
+    #[arg(long, value_enum, default_value = "optimiser")]
+    solver: SolverArg,
+    /// `--solver pipeline`: the flow policy [default: the shipped weights
+    /// for the dimension, models/weights/flow.safetensors or flow3d].
+    #[arg(long)]
+    flow_weights: Option<PathBuf>,
+    /// `--solver pipeline`: the SF initialiser [default: the shipped one
+    /// for the dimension, models/weights/init.safetensors or init3d].
+    #[arg(long)]
+    init_weights: Option<PathBuf>,
+}
+
+/// Who solves a dataset's instances, on the command line.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+enum SolverArg {
+    /// The from-scratch optimiser.
+    Optimiser,
+    /// The learned pipeline (default settings, one thread per instance):
+    /// its verified plans, e.g. of scenes the optimiser fails.
+    Pipeline,
 }
 
 /// Runs `flowopt datagen`.
 pub fn run(args: DatagenArgs) -> Result<()> {
-    let config = DatagenConfig {
+    let mut config = DatagenConfig {
         family: args.family.into(),
         dim: args.dim,
         robots: args.robots,
@@ -58,7 +81,16 @@ pub fn run(args: DatagenArgs) -> Result<()> {
         per_bucket: args.per_bucket,
         shard_size: args.shard_size,
         first_seed: args.first_seed,
+        solver: DataSolver::Optimiser,
     };
+    if args.solver == SolverArg::Pipeline {
+        let (flow, init) = shipped_weights(config.dimension()?);
+        let hashed = |path: PathBuf| WeightFile::hashed(&path).with_context(|| format!("reading {}", path.display()));
+        config.solver = DataSolver::Pipeline {
+            flow: hashed(args.flow_weights.unwrap_or(flow))?,
+            init: Some(hashed(args.init_weights.unwrap_or(init))?),
+        };
+    }
     let mut buckets = 0;
     for &robots in &config.robots {
         buckets += config.obstacle_counts(robots).context("placing the family's first scene")?.len();

@@ -126,18 +126,23 @@ pub fn smoothing_weight(text: &str) -> Result<f64, String> {
     }
 }
 
+/// The shipped flow policy's and initialiser's weights for teams of `dim`
+/// (paths from the repository root).
+pub fn shipped_weights(dim: Dim) -> (PathBuf, PathBuf) {
+    let suffix = match dim {
+        Dim::Two => "",
+        Dim::Three => "3d",
+    };
+    let shipped = |name: &str| PathBuf::from(format!("models/weights/{name}{suffix}.safetensors"));
+    (shipped("flow"), shipped("init"))
+}
+
 impl LearnedArgs {
-    /// The flow policy's and the initialiser's weights for teams of `dim`.
+    /// The flow policy's and the initialiser's weights for teams of `dim`
+    /// (the shipped ones unless given).
     pub fn weights(&self, dim: Dim) -> (PathBuf, PathBuf) {
-        let suffix = match dim {
-            Dim::Two => "",
-            Dim::Three => "3d",
-        };
-        let shipped = |name: &str| PathBuf::from(format!("models/weights/{name}{suffix}.safetensors"));
-        (
-            self.flow_weights.clone().unwrap_or_else(|| shipped("flow")),
-            self.init_weights.clone().unwrap_or_else(|| shipped("init")),
-        )
+        let (flow, init) = shipped_weights(dim);
+        (self.flow_weights.clone().unwrap_or(flow), self.init_weights.clone().unwrap_or(init))
     }
 
     /// The safety filter's objective.
