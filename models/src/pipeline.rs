@@ -99,7 +99,7 @@ pub enum Settle {
 /// verifies, up to 8 rounds of that while none does (the 16-robot obstacle
 /// field: 45% verified in one round, 100% in eight). Without obstacles 4
 /// candidates verified every random, swap, crossing, formation and crowd
-/// scene of 16-64 robots (2D and 3D) that 8 did, in 15-35% less time; with
+/// scene of 16-64 robots (2D and 3D) that 8 did, in 12-35% less time; with
 /// obstacles 4 lost instances (the 16-robot obstacle field 95%, moving
 /// obstacles 98%). Measured on
 /// 100 unseen 16-robot instances (docs/LEARNED.md): with 8 obstacles 16
