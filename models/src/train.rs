@@ -373,8 +373,7 @@ pub fn train_flow(
         FlowStart::Fresh(model) => (model.clone(), statistics(data)?, Vec::new()),
         FlowStart::From(path) => {
             let loaded = crate::weights::load::<FlowConfig>(path, "flow")?;
-            let hash = crate::dataset::hash_files(std::slice::from_ref(path))?;
-            (loaded.config, loaded.stats, vec![(path.display().to_string(), hash)])
+            (loaded.config, loaded.stats, vec![card_input(path)?])
         }
     };
     let net = FlowModel::new(VarBuilder::from_varmap(&vars, DType::F32, &Device::Cpu), &model)?;
@@ -402,6 +401,12 @@ pub fn train_flow(
     save(out, &vars, "flow", &model, &stats)?;
     write_card(out, "flow", &model, cfg, data, inputs, &splits, &report)?;
     Ok(report)
+}
+
+/// A model card's entry for weights a training read (the policy it
+/// fine-tuned, the policy an initialiser learnt from): path and sha256.
+fn card_input(path: &Path) -> Result<(String, String), ModelError> {
+    Ok((path.display().to_string(), crate::dataset::hash_files(&[path.to_path_buf()])?))
 }
 
 /// Writes `out.json`, the model card of the weights at `out`.
@@ -536,7 +541,6 @@ pub fn train_init(
         progress,
     )?;
     save(out, &vars, "init", init, &stats)?;
-    let inputs = vec![(flow_path.display().to_string(), crate::dataset::hash_files(&[flow_path.to_path_buf()])?)];
-    write_card(out, "init", init, cfg, data, inputs, &splits, &report)?;
+    write_card(out, "init", init, cfg, data, vec![card_input(flow_path)?], &splits, &report)?;
     Ok(report)
 }
