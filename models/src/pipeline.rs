@@ -55,8 +55,15 @@ pub struct PipelineSettings {
     pub top_k: usize,
     /// Start the SF from the initialiser (`false`, or no initialiser
     /// loaded: from the samples with a zero multiplier, the `flow-no-init`
-    /// ablation).
+    /// ablation), on problems with obstacles only unless
+    /// `init_without_obstacles` ([`Self::init_for`]).
     pub use_init: bool,
+    /// Use the initialiser on problems without obstacles too. Off by
+    /// default: there it lowered no scene's filter iterations by more than
+    /// 2% and cost 0.2-0.7 ms of the plan (docs/LEARNED.md, "The
+    /// initialiser where it can matter"); with obstacles it is what
+    /// verifies the 16-robot obstacle field at all.
+    pub init_without_obstacles: bool,
     /// Threads sampling (the candidates split between them) and refining
     /// candidates in parallel.
     pub threads: usize,
@@ -95,7 +102,8 @@ pub enum Settle {
 }
 
 /// The defaults: 4 candidates on both cores in 1 Euler step without
-/// obstacles, 8 in 2 steps with them, the best 6 refined until one
+/// obstacles and the filter started from the samples, 8 in 2 steps with
+/// them and the filter started by the initialiser, the best 6 refined until one
 /// verifies, up to 8 rounds of that while none does (the 16-robot obstacle
 /// field: 45% verified in one round, 100% in eight). Without obstacles 4
 /// candidates verified every random, swap, crossing, formation and crowd
@@ -119,6 +127,7 @@ impl Default for PipelineSettings {
             solver: Solver::Euler,
             top_k: 6,
             use_init: true,
+            init_without_obstacles: false,
             threads: 2,
             temperature: 1.0,
             reroute: true,
@@ -137,6 +146,12 @@ impl PipelineSettings {
     /// Flow integration steps for a problem with `obstacles` obstacles.
     pub fn steps_for(&self, obstacles: usize) -> usize {
         if obstacles == 0 { self.steps } else { self.obstacle_steps }
+    }
+
+    /// Whether the initialiser starts the SF on a problem with `obstacles`
+    /// obstacles (when one is loaded).
+    pub fn init_for(&self, obstacles: usize) -> bool {
+        self.use_init && (obstacles > 0 || self.init_without_obstacles)
     }
 }
 
@@ -490,7 +505,9 @@ impl FlowOpt {
                     AmState { lambda: vec![0.0; xi.len()], xi }
                 })
                 .collect();
-            let (Some(init), true) = (&self.init, settings.use_init) else { return Ok(starts) };
+            let (Some(init), true) = (&self.init, settings.init_for(first.seen.obstacles.len())) else {
+                return Ok(starts);
+            };
             let index = |f: &dyn Fn(&Job) -> usize| {
                 Tensor::new(ids.iter().map(|&j| f(&jobs[j]) as u32).collect::<Vec<_>>().as_slice(), &Device::Cpu)
             };

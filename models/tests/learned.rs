@@ -12,7 +12,7 @@ use flowopt_models::flow::FlowConfig;
 use flowopt_models::init::InitConfig;
 use flowopt_models::pipeline::{DEFAULT_SF_SMOOTHING, FlowOpt, PipelineSettings, Settle};
 use flowopt_models::train::{FlowStart, InitData, TrainConfig, train_flow, train_init};
-use flowopt_planner::am::{AmSettings, Budget, Engine, Objective, Stop};
+use flowopt_planner::am::{AmSettings, AmState, Budget, Engine, Objective, Stop};
 use flowopt_planner::metrics::Metrics;
 use flowopt_planner::plan::JointPlan;
 use flowopt_planner::problem::Problem;
@@ -128,6 +128,17 @@ fn tiny_networks_learn_and_the_pipeline_plans_with_them() {
     let free = Problem { obstacles: Vec::new(), ..problem.clone() };
     let free_sf = Engine::new(&team, 0, Objective::filter(init_cfg.sf_smoothing), AmSettings::safety_filter()).unwrap();
     assert_eq!(planner.plan(&free, &free_sf, &settings, 1, &Budget::unlimited()).unwrap().samples.len(), 5);
+    // The initialiser starts the filter where there are obstacles, and
+    // without them only when asked to.
+    let starts = |problem: &Problem, sf: &Engine, settings: &PipelineSettings| -> Vec<AmState> {
+        let out = planner.plan(problem, sf, settings, 1, &Budget::unlimited()).unwrap();
+        out.refined.into_iter().map(|r| r.start).collect()
+    };
+    let none = PipelineSettings { use_init: false, ..settings.clone() };
+    let everywhere = PipelineSettings { init_without_obstacles: true, ..settings.clone() };
+    assert_eq!(starts(&free, &free_sf, &settings), starts(&free, &free_sf, &none));
+    assert_ne!(starts(&free, &free_sf, &everywhere), starts(&free, &free_sf, &none));
+    assert_ne!(starts(&problem, &sf, &settings), starts(&problem, &sf, &none));
     assert!(out.refined.windows(2).all(|w| w[0].sample_primal <= w[1].sample_primal), "ranked by primal residual");
     let m = Metrics::measure(&problem, &JointPlan::new(&team, out.xi().to_vec()));
     assert!(m.boundary_error < 1e-6, "every plan meets the boundary conditions: {}", m.boundary_error);
@@ -241,7 +252,14 @@ fn an_untrained_initialiser_is_the_plain_start() {
     let team = flowopt_planner::problem::Team::default_for(flowopt_planner::problem::Dim::Two, 4);
     let problem = flowopt_planner::scenario::RandomScenario::new(team.clone()).generate(5).unwrap();
     let sf = Engine::new(&team, 0, Objective::Projection, AmSettings::safety_filter()).unwrap();
-    let with = PipelineSettings { candidates: 4, steps: 1, obstacle_steps: 1, top_k: 2, ..PipelineSettings::default() };
+    let with = PipelineSettings {
+        candidates: 4,
+        steps: 1,
+        obstacle_steps: 1,
+        top_k: 2,
+        init_without_obstacles: true,
+        ..PipelineSettings::default()
+    };
     let without = PipelineSettings { use_init: false, ..with.clone() };
     let a = planner.plan(&problem, &sf, &with, 9, &Budget::unlimited()).unwrap();
     let b = planner.plan(&problem, &sf, &without, 9, &Budget::unlimited()).unwrap();

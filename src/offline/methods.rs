@@ -101,6 +101,10 @@ pub struct LearnedArgs {
     /// rerouting of their robots before the safety filter).
     #[arg(long)]
     pub no_reroute: bool,
+    /// Start the safety filter from the initialiser on problems without
+    /// obstacles too (by default it is used where there are obstacles).
+    #[arg(long)]
+    pub init_without_obstacles: bool,
     /// Refine every one of the top-k and return the smoothest verified plan
     /// (the paper's selection), instead of stopping at the best-ranked
     /// candidate that verifies.
@@ -164,6 +168,7 @@ impl LearnedArgs {
             top_k: self.top_k,
             temperature: self.temperature,
             use_init: method != Method::FlowNoInit,
+            init_without_obstacles: self.init_without_obstacles,
             // Racing the optimiser, the pipeline refines on one core.
             threads: if method == Method::Auto { 1 } else { PipelineSettings::default().threads },
             reroute: !self.no_reroute,

@@ -369,6 +369,13 @@ fn header(f: &HeaderFacts) -> String {
     } else {
         "as the plain projection".to_string()
     };
+    let init = if pipeline.init_without_obstacles {
+        "the SF initialiser"
+    } else {
+        "the SF initialiser where there are obstacles (without them the filter starts from the samples, so \
+         there `flowopt` and `flow-no-init` plan alike: docs/LEARNED.md, \"The initialiser where it can \
+         matter\"; `flowopt eval --init-without-obstacles` gives the paper's ablation there)"
+    };
     format!(
         "# Results\n\n\
          Written by `{}` (release build) on {}, no GPU. This run took {:.1} min. Machine speed in this run: \
@@ -382,7 +389,7 @@ fn header(f: &HeaderFacts) -> String {
          Methods: **baseline** is the from-scratch AM optimiser (smoothness cost, routed cold start, up to {} \
          restarts sharing an iteration cap of {}, fewer where that leaves an attempt under {} iterations per robot; \
          its robot pairs on two threads from {} robots); **flowopt** is the learned pipeline ({} flow candidates in {} \
-         {:?} steps without obstacles, {} in {} with, {reroute}top {} by primal residual, SF initialiser, safety filter on {} threads {metric} \
+         {:?} steps without obstacles, {} in {} with, {reroute}top {} by primal residual, {init}, safety filter on {} threads {metric} \
          with the penalty starting at {} and doubling every {} iterations up to {}, cap {}, {settle}; up to {} rounds of \
          sampling and refining while none verifies); **flow-no-init** is the same with the safety filter \
          started from the flow samples (the paper's ablation). Rows a method cannot plan say why. Success is \
