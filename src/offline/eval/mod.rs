@@ -562,12 +562,14 @@ fn throughput(args: &EvalArgs, command: &str) -> Result<String> {
     const PROBLEMS: usize = 50;
     const CANDIDATES: usize = 10;
     const REFINED: usize = 5;
-    // Every one of the best REFINED is refined (the paper's selection).
+    // Every one of the best REFINED is initialised and refined (the
+    // paper's protocol and selection).
     let learned = LearnedArgs {
         candidates: CANDIDATES,
         obstacle_candidates: CANDIDATES,
         top_k: REFINED,
         smoothest: true,
+        init_without_obstacles: true,
         ..args.learned.clone()
     };
     let mut planner = Planner::new(Overrides::default(), Some(learned.clone()));
