@@ -316,6 +316,7 @@ impl TeamPlanner {
                 use_init: planner.model().has_init(),
                 // Racing the optimiser, the learned planner keeps to one core.
                 threads: 1,
+                obstacle_threads: 1,
                 ..PipelineSettings::default()
             };
             methods.push(Method::Learned { planner: Box::new(planner), settings, filters, plans: 0 });

@@ -55,7 +55,7 @@ impl Solving {
         match self {
             Solving::Optimiser => Ok(Some(engine.solve(problem)?.state.xi)),
             Solving::Pipeline(p) => {
-                let settings = PipelineSettings { threads: 1, ..PipelineSettings::default() };
+                let settings = PipelineSettings { threads: 1, obstacle_threads: 1, ..PipelineSettings::default() };
                 let out = p.model().plan(problem, engine, &settings, seed, &Budget::unlimited())?;
                 Ok(out.verified.then(|| out.xi().to_vec()))
             }

@@ -65,8 +65,10 @@ pub struct PipelineSettings {
     /// verifies the 16-robot obstacle field at all.
     pub init_without_obstacles: bool,
     /// Threads sampling (the candidates split between them) and refining
-    /// candidates in parallel.
+    /// candidates in parallel, for problems without obstacles.
     pub threads: usize,
+    /// The same for problems with obstacles (static or moving).
+    pub obstacle_threads: usize,
     /// Scale of the initial noise (1 samples the learned distribution;
     /// lower values trade diversity for samples nearer its mode).
     pub temperature: f64,
@@ -101,11 +103,18 @@ pub enum Settle {
     Smoothest,
 }
 
-/// The defaults: 4 candidates on both cores in 1 Euler step without
-/// obstacles and the filter started from the samples, 8 in 2 steps with
-/// them and the filter started by the initialiser, the best 6 refined until one
-/// verifies, up to 8 rounds of that while none does (the 16-robot obstacle
-/// field: 45% verified in one round, 100% in eight). Without obstacles 4
+/// The defaults: 4 candidates in 1 Euler step on one core without
+/// obstacles and the filter started from the samples, 8 in 2 steps on both
+/// cores with them and the filter started by the initialiser, the best 6
+/// refined until one verifies, up to 8 rounds of that while none does (the
+/// 16-robot obstacle field: 45% verified in one round, 100% in eight). One
+/// core without obstacles: the second core's share of so small a batch
+/// runs slower beside the first (the two contend for the cache) and the
+/// first refined candidate nearly always verifies, so random teams of 32
+/// planned in 6.9 ms against 8.1 on two, 3D teams of 64 in 12.7 against
+/// 13.8; with obstacles two stay faster (16 robots and 8 obstacles 8.3
+/// against 9.9 ms, the 16-robot obstacle field 67 against 107 ms;
+/// docs/LEARNED.md). Without obstacles 4
 /// candidates verified every random, swap, crossing, formation and crowd
 /// scene of 16-64 robots (2D and 3D) that 8 did, in 12-35% less time; with
 /// obstacles 4 lost instances (the 16-robot obstacle field 95%, moving
@@ -128,7 +137,8 @@ impl Default for PipelineSettings {
             top_k: 6,
             use_init: true,
             init_without_obstacles: false,
-            threads: 2,
+            threads: 1,
+            obstacle_threads: 2,
             temperature: 1.0,
             reroute: true,
             settle: Settle::FirstVerified,
@@ -146,6 +156,11 @@ impl PipelineSettings {
     /// Flow integration steps for a problem with `obstacles` obstacles.
     pub fn steps_for(&self, obstacles: usize) -> usize {
         if obstacles == 0 { self.steps } else { self.obstacle_steps }
+    }
+
+    /// Threads for a problem with `obstacles` obstacles (at least 1).
+    pub fn threads_for(&self, obstacles: usize) -> usize {
+        if obstacles == 0 { self.threads } else { self.obstacle_threads }.max(1)
     }
 
     /// Whether the initialiser starts the SF on a problem with `obstacles`
@@ -343,7 +358,7 @@ impl FlowOpt {
         // The candidates split between the threads, each integrating its
         // share on one core (candle itself runs one thread when planning).
         let rows = p * count;
-        let threads = settings.threads.clamp(1, rows);
+        let threads = settings.threads_for(m).clamp(1, rows);
         let share = rows.div_ceil(threads);
         let parts = crate::runtime::parallel(threads, threads, |t| {
             let (first, len) = (t * share, share.min(rows.saturating_sub(t * share)));
@@ -380,7 +395,7 @@ impl FlowOpt {
     /// every candidate of every problem is sampled in one batch, the
     /// initialiser runs once over all refined candidates, and the safety
     /// filter `sf` (built for the enforced problems' team and obstacle
-    /// count) refines them all on `settings.threads` threads. `seed` seeds
+    /// count) refines them all on [`PipelineSettings::threads_for`] threads. `seed` seeds
     /// the flow noise. The safety filter stops ([`Stop::Deadline`],
     /// [`Stop::Cancelled`]) with its current iterate once `budget` is spent. Returns one outcome per
     /// query, in order; their stage times are the batch's.
@@ -534,7 +549,9 @@ impl FlowOpt {
         // candidate, only those of the first wave (one per thread), the
         // others when (if) their turn comes.
         let eager: Vec<usize> = (0..jobs.len())
-            .filter(|&j| settings.settle == Settle::Smoothest || jobs[j].rank < settings.threads.max(1))
+            .filter(|&j| {
+                settings.settle == Settle::Smoothest || jobs[j].rank < settings.threads_for(first.seen.obstacles.len())
+            })
             .collect();
         let mut ready: Vec<Option<AmState>> = jobs.iter().map(|_| None).collect();
         for (j, start) in eager.iter().zip(start_of(&eager)?) {
@@ -705,7 +722,8 @@ fn refine(
     // Per query, the best rank verified so far (usize::MAX: none).
     let settled: Vec<AtomicUsize> = queries.iter().map(|_| AtomicUsize::new(usize::MAX)).collect();
     let first_verified = settings.settle == Settle::FirstVerified;
-    crate::runtime::parallel(jobs.len(), settings.threads, |j| {
+    let threads = queries.first().map_or(1, |q| settings.threads_for(q.seen.obstacles.len()));
+    crate::runtime::parallel(jobs.len(), threads, |j| {
         let Job { query: qi, sample: i, primal, rank } = jobs[j];
         let outranked = || first_verified && settled[qi].load(Ordering::Acquire) < rank;
         if outranked() {

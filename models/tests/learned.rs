@@ -155,7 +155,8 @@ fn tiny_networks_learn_and_the_pipeline_plans_with_them() {
     // threads; the candidates ranked above it ran to their end.
     let best = out.refined.iter().position(|r| r.outcome.stop == Stop::Verified).expect("a candidate verifies");
     for threads in [1, 2] {
-        let first = PipelineSettings { settle: Settle::FirstVerified, threads, ..settings.clone() };
+        let first =
+            PipelineSettings { settle: Settle::FirstVerified, threads, obstacle_threads: threads, ..settings.clone() };
         let got = planner.plan(&problem, &sf, &first, 1, &Budget::unlimited()).unwrap();
         assert!(got.verified);
         assert_eq!(got.refined[got.chosen].rank, best, "{threads} threads");
@@ -208,7 +209,7 @@ fn tiny_networks_learn_and_the_pipeline_plans_with_them() {
     let filter =
         Engine::new(&team, bucket.obstacles, Objective::filter(DEFAULT_SF_SMOOTHING), AmSettings::safety_filter())
             .unwrap();
-    let one_thread = PipelineSettings { threads: 1, ..PipelineSettings::default() };
+    let one_thread = PipelineSettings { threads: 1, obstacle_threads: 1, ..PipelineSettings::default() };
     let planned = planner.plan(&instance, &filter, &one_thread, seed, &Budget::unlimited()).unwrap();
     assert!(planned.verified);
     let coding = Coding::new(&team).unwrap();

@@ -101,6 +101,14 @@ pub struct LearnedArgs {
     /// rerouting of their robots before the safety filter).
     #[arg(long)]
     pub no_reroute: bool,
+    /// Threads the pipeline samples and refines on where there are no
+    /// obstacles (racing the optimiser, `auto` keeps to one).
+    #[arg(long, default_value_t = PipelineSettings::default().threads)]
+    pub threads: usize,
+    /// Threads the pipeline samples and refines on where there are
+    /// obstacles (`auto`: one).
+    #[arg(long, default_value_t = PipelineSettings::default().obstacle_threads)]
+    pub obstacle_threads: usize,
     /// Start the safety filter from the initialiser on problems without
     /// obstacles too (by default it is used where there are obstacles).
     #[arg(long)]
@@ -170,7 +178,8 @@ impl LearnedArgs {
             use_init: method != Method::FlowNoInit,
             init_without_obstacles: self.init_without_obstacles,
             // Racing the optimiser, the pipeline refines on one core.
-            threads: if method == Method::Auto { 1 } else { PipelineSettings::default().threads },
+            threads: if method == Method::Auto { 1 } else { self.threads.max(1) },
+            obstacle_threads: if method == Method::Auto { 1 } else { self.obstacle_threads.max(1) },
             reroute: !self.no_reroute,
             settle: if self.smoothest { Settle::Smoothest } else { Settle::FirstVerified },
             rounds: self.rounds,

@@ -351,7 +351,7 @@ fn header(f: &HeaderFacts) -> String {
     let settle = match pipeline.settle {
         Settle::FirstVerified => {
             "taking the candidates in rank order and returning the best-ranked one that verifies (the candidates \
-             are sampled on both threads)"
+             are sampled on the same threads)"
         }
         Settle::Smoothest => "returning the verified plan with the lowest smoothness",
     };
@@ -389,7 +389,7 @@ fn header(f: &HeaderFacts) -> String {
          Methods: **baseline** is the from-scratch AM optimiser (smoothness cost, routed cold start, up to {} \
          restarts sharing an iteration cap of {}, fewer where that leaves an attempt under {} iterations per robot; \
          its robot pairs on two threads from {} robots); **flowopt** is the learned pipeline ({} flow candidates in {} \
-         {:?} steps without obstacles, {} in {} with, {reroute}top {} by primal residual, {init}, safety filter on {} threads {metric} \
+         {:?} steps without obstacles, {} in {} with, {reroute}top {} by primal residual, {init}, safety filter on {} thread(s) without obstacles and {} with {metric} \
          with the penalty starting at {} and doubling every {} iterations up to {}, cap {}, {settle}; up to {} rounds of \
          sampling and refining while none verifies); **flow-no-init** is the same with the safety filter \
          started from the flow samples (the paper's ablation). Rows a method cannot plan say why. Success is \
@@ -417,6 +417,7 @@ fn header(f: &HeaderFacts) -> String {
         pipeline.obstacle_steps,
         pipeline.top_k,
         pipeline.threads,
+        pipeline.obstacle_threads,
         filter.rho.initial,
         filter.rho.every,
         filter.rho.max,
@@ -570,6 +571,8 @@ fn throughput(args: &EvalArgs, command: &str) -> Result<String> {
         top_k: REFINED,
         smoothest: true,
         init_without_obstacles: true,
+        // A batch is throughput work: both cores.
+        threads: 2,
         ..args.learned.clone()
     };
     let mut planner = Planner::new(Overrides::default(), Some(learned.clone()));
