@@ -13,6 +13,7 @@
 
 use std::cmp::Reverse;
 use std::collections::BinaryHeap;
+use std::sync::OnceLock;
 
 use nalgebra::Vector3;
 
@@ -24,10 +25,16 @@ use crate::problem::{Dim, Obstacle, Team, scaled_norm};
 const CELLS: usize = 48;
 
 /// Static obstacles inflated for routing: centre, and the robot-obstacle
-/// separations `(a_o, b_o)` grown by the margin and one grid cell.
+/// separations `(a_o, b_o)` grown by the margin and one grid cell; with the
+/// routing grid of the team they were built for.
 pub struct Blockers {
     dim: Dim,
     obstacles: Vec<(Vector3<f64>, f64, f64)>,
+    grid: Grid,
+    /// Per grid cell, whether its centre is outside every obstacle: built
+    /// by the first [`route`] and shared by the later ones (in 3D a grid of
+    /// 10^5 cells, most of a route's time when built per route).
+    free: OnceLock<Vec<bool>>,
 }
 
 impl Blockers {
@@ -42,7 +49,36 @@ impl Blockers {
                 (o.position, a * (1.0 + margin) + pad, b * (1.0 + margin) + pad)
             })
             .collect();
-        Self { dim: team.dim, obstacles }
+        Self { dim: team.dim, obstacles, grid: Grid::new(team), free: OnceLock::new() }
+    }
+
+    /// Per cell of the grid, whether its centre is outside every obstacle
+    /// ([`Self::blocks`], evaluated only on the cells of each obstacle's
+    /// bounding box, the others being outside it).
+    fn free_cells(&self) -> Vec<bool> {
+        let grid = &self.grid;
+        let mut free = vec![true; grid.total];
+        for (c, a, b) in &self.obstacles {
+            let mut low = [0usize; 3];
+            let mut high = [0usize; 3];
+            for axis in 0..grid.axes {
+                let half = if axis == 2 { *b } else { *a };
+                let cell = |x: f64| ((x - grid.min[axis]) / grid.cell).clamp(0.0, (grid.dims[axis] - 1) as f64);
+                low[axis] = cell(c[axis] - half).floor() as usize;
+                high[axis] = cell(c[axis] + half).ceil() as usize;
+            }
+            for k in low[2]..=high[2] {
+                for j in low[1]..=high[1] {
+                    for i in low[0]..=high[0] {
+                        let idx = (k * grid.dims[1] + j) * grid.dims[0] + i;
+                        if free[idx] && self.blocks(&grid.centre(idx)) {
+                            free[idx] = false;
+                        }
+                    }
+                }
+            }
+        }
+        free
     }
 
     /// Whether any static obstacle is left.
@@ -64,40 +100,108 @@ impl Blockers {
     }
 }
 
-/// A grid shortest path from `start` to `goal` around `blockers` within the
-/// workspace, shortened by line of sight. `None` when the goal is walled off
-/// on the grid.
-pub fn route(team: &Team, blockers: &Blockers, start: &Vector3<f64>, goal: &Vector3<f64>) -> Option<Vec<Vector3<f64>>> {
-    let axes = team.dim.axes();
-    let ws = &team.workspace;
-    let longest = (0..axes).map(|a| ws.max[a] - ws.min[a]).fold(0.0, f64::max);
-    let cell = longest / CELLS as f64;
-    let dims: Vec<usize> = (0..axes).map(|a| ((ws.max[a] - ws.min[a]) / cell).ceil() as usize + 1).collect();
-    let total: usize = dims.iter().product();
-    let centre = |idx: usize| -> Vector3<f64> {
+/// The routing grid: [`CELLS`] cells along the workspace's longest side.
+struct Grid {
+    axes: usize,
+    min: Vector3<f64>,
+    max: Vector3<f64>,
+    cell: f64,
+    dims: [usize; 3],
+    total: usize,
+}
+
+impl Grid {
+    fn new(team: &Team) -> Self {
+        let axes = team.dim.axes();
+        let ws = &team.workspace;
+        let longest = (0..axes).map(|a| ws.max[a] - ws.min[a]).fold(0.0, f64::max);
+        let cell = longest / CELLS as f64;
+        let mut dims = [1; 3];
+        for (a, d) in dims.iter_mut().enumerate().take(axes) {
+            *d = ((ws.max[a] - ws.min[a]) / cell).ceil() as usize + 1;
+        }
+        Self { axes, min: ws.min, max: ws.max, cell, dims, total: dims.iter().product() }
+    }
+
+    /// The centre of cell `idx` (clamped to the workspace).
+    fn centre(&self, idx: usize) -> Vector3<f64> {
         let mut p = Vector3::zeros();
         let mut rest = idx;
-        for a in 0..axes {
-            p[a] = (ws.min[a] + (rest % dims[a]) as f64 * cell).min(ws.max[a]);
-            rest /= dims[a];
+        for a in 0..self.axes {
+            p[a] = (self.min[a] + (rest % self.dims[a]) as f64 * self.cell).min(self.max[a]);
+            rest /= self.dims[a];
         }
         p
-    };
-    let index_of = |p: &Vector3<f64>| -> usize {
+    }
+
+    /// The cell nearest to `p`.
+    fn index_of(&self, p: &Vector3<f64>) -> usize {
         let mut idx = 0;
-        for a in (0..axes).rev() {
-            let i = (((p[a] - ws.min[a]) / cell).round().max(0.0) as usize).min(dims[a] - 1);
-            idx = idx * dims[a] + i;
+        for a in (0..self.axes).rev() {
+            let i = (((p[a] - self.min[a]) / self.cell).round().max(0.0) as usize).min(self.dims[a] - 1);
+            idx = idx * self.dims[a] + i;
         }
         idx
-    };
-    let from = index_of(start);
-    let to = index_of(goal);
-    let free: Vec<bool> = (0..total).map(|i| i == from || i == to || !blockers.blocks(&centre(i))).collect();
+    }
+
+    /// The coordinates of cell `idx`.
+    fn coordinates(&self, idx: usize) -> [usize; 3] {
+        let mut coord = [0; 3];
+        let mut rest = idx;
+        for a in 0..self.axes {
+            coord[a] = rest % self.dims[a];
+            rest /= self.dims[a];
+        }
+        coord
+    }
+}
+
+/// A neighbour of a grid cell: its offset per axis, the change of the
+/// cell index, and the step's length in cells.
+struct Neighbour {
+    offset: [i64; 3],
+    delta: i64,
+    length: f64,
+}
+
+/// The 8 (2D) or 26 (3D) neighbours of a cell, in the search's order.
+fn neighbours(grid: &Grid) -> Vec<Neighbour> {
+    let count = 3usize.pow(grid.axes as u32);
+    let mut out = Vec::with_capacity(count - 1);
+    for code in 0..count {
+        let mut rest = code;
+        let mut offset = [0i64; 3];
+        for o in offset.iter_mut().take(grid.axes) {
+            *o = (rest % 3) as i64 - 1;
+            rest /= 3;
+        }
+        if offset.iter().all(|&v| v == 0) {
+            continue;
+        }
+        let mut delta = 0i64;
+        for a in (0..grid.axes).rev() {
+            delta = delta * grid.dims[a] as i64 + offset[a];
+        }
+        let length = offset.iter().map(|o| (o * o) as f64).sum::<f64>().sqrt();
+        out.push(Neighbour { offset, delta, length });
+    }
+    out
+}
+
+/// A grid shortest path from `start` to `goal` around `blockers` (built
+/// for `team`) within the workspace, shortened by line of sight. `None`
+/// when the goal is walled off on the grid.
+pub fn route(team: &Team, blockers: &Blockers, start: &Vector3<f64>, goal: &Vector3<f64>) -> Option<Vec<Vector3<f64>>> {
+    debug_assert_eq!(team.dim.axes(), blockers.grid.axes, "blockers built for this team");
+    let grid = &blockers.grid;
+    let from = grid.index_of(start);
+    let to = grid.index_of(goal);
+    let free = blockers.free.get_or_init(|| blockers.free_cells());
+    let open = |v: usize| v == from || v == to || free[v];
     // Dijkstra over the 8- (2D) or 26- (3D) neighbourhood.
-    let offsets: Vec<Vec<i64>> = neighbour_offsets(axes);
-    let mut dist = vec![f64::INFINITY; total];
-    let mut prev = vec![usize::MAX; total];
+    let steps = neighbours(grid);
+    let mut dist = vec![f64::INFINITY; grid.total];
+    let mut prev = vec![usize::MAX; grid.total];
     let mut heap = BinaryHeap::new();
     dist[from] = 0.0;
     heap.push(Reverse((Ordered(0.0), from)));
@@ -108,31 +212,24 @@ pub fn route(team: &Team, blockers: &Blockers, start: &Vector3<f64>, goal: &Vect
         if d > dist[u] {
             continue;
         }
-        let mut coord = [0i64; 3];
-        let mut rest = u;
-        for a in 0..axes {
-            coord[a] = (rest % dims[a]) as i64;
-            rest /= dims[a];
-        }
-        for off in &offsets {
-            let mut v = 0usize;
-            let mut inside = true;
-            for a in (0..axes).rev() {
-                let c = coord[a] + off[a];
-                if c < 0 || c >= dims[a] as i64 {
-                    inside = false;
-                    break;
-                }
-                v = v * dims[a] + c as usize;
-            }
-            if !inside || !free[v] {
+        let coord = grid.coordinates(u);
+        for step in &steps {
+            let inside = (0..grid.axes).all(|a| {
+                let c = coord[a] as i64 + step.offset[a];
+                c >= 0 && c < grid.dims[a] as i64
+            });
+            if !inside {
                 continue;
             }
-            let step = off.iter().map(|o| (o * o) as f64).sum::<f64>().sqrt() * cell;
-            if d + step < dist[v] {
-                dist[v] = d + step;
+            let v = (u as i64 + step.delta) as usize;
+            if !open(v) {
+                continue;
+            }
+            let next = d + step.length * grid.cell;
+            if next < dist[v] {
+                dist[v] = next;
                 prev[v] = u;
-                heap.push(Reverse((Ordered(d + step), v)));
+                heap.push(Reverse((Ordered(next), v)));
             }
         }
     }
@@ -147,7 +244,7 @@ pub fn route(team: &Team, blockers: &Blockers, start: &Vector3<f64>, goal: &Vect
         cells.push(prev[last]);
     }
     cells.reverse();
-    let mut raw: Vec<Vector3<f64>> = cells.iter().map(|&c| centre(c)).collect();
+    let mut raw: Vec<Vector3<f64>> = cells.iter().map(|&c| grid.centre(c)).collect();
     raw[0] = *start;
     if let Some(last) = raw.last_mut() {
         *last = *goal;
@@ -167,25 +264,6 @@ pub fn route(team: &Team, blockers: &Blockers, start: &Vector3<f64>, goal: &Vect
         at = next;
     }
     Some(path)
-}
-
-fn neighbour_offsets(axes: usize) -> Vec<Vec<i64>> {
-    let mut out = Vec::new();
-    let count = 3usize.pow(axes as u32);
-    for code in 0..count {
-        let mut rest = code;
-        let off: Vec<i64> = (0..axes)
-            .map(|_| {
-                let v = (rest % 3) as i64 - 1;
-                rest /= 3;
-                v
-            })
-            .collect();
-        if off.iter().any(|&v| v != 0) {
-            out.push(off);
-        }
-    }
-    out
 }
 
 /// Total order on the distances of the search.
@@ -292,6 +370,29 @@ mod tests {
             assert!(!blockers.segment_blocked(&w[0], &w[1]), "segment {:?} -> {:?}", w[0], w[1]);
         }
         assert_eq!((path[0], path[path.len() - 1]), (start, goal));
+    }
+
+    #[test]
+    fn the_free_cells_are_those_outside_every_obstacle() {
+        // Obstacles of every shape, at the workspace's faces and corners
+        // too, in 2D and 3D: the mask built from their bounding boxes is
+        // the test of every cell.
+        for dim in [Dim::Two, Dim::Three] {
+            let team = Team::default_for(dim, 4);
+            let (lo, hi) = (team.workspace.min, team.workspace.max);
+            let mut obstacles = Vec::new();
+            for (k, f) in [0.0, 0.13, 0.5, 0.77, 1.0].into_iter().enumerate() {
+                let at = lo + (hi - lo) * f;
+                let shape = Spheroid { radius: 0.05 + 0.07 * k as f64, half_height: 0.3 - 0.05 * k as f64 };
+                obstacles.push(Obstacle { position: at, velocity: Vector3::zeros(), shape });
+            }
+            let blockers = Blockers::new(&team, &obstacles, 0.05, 0.02);
+            let grid = &blockers.grid;
+            let every: Vec<bool> = (0..grid.total).map(|i| !blockers.blocks(&grid.centre(i))).collect();
+            let mask = blockers.free_cells();
+            assert_eq!(mask, every, "{dim:?}");
+            assert!(mask.iter().any(|f| !f), "{dim:?}: some cells are blocked");
+        }
     }
 
     #[test]
