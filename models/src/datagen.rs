@@ -22,7 +22,8 @@ use crate::pipeline::{DEFAULT_SF_SMOOTHING, LearnedPlanner, PipelineSettings};
 enum Solving {
     /// The from-scratch optimiser.
     Optimiser,
-    /// The learned pipeline, one thread per instance.
+    /// The learned pipeline with its default settings (so the initialiser
+    /// where there are obstacles only), one thread per instance.
     Pipeline(Box<LearnedPlanner>),
 }
 

@@ -158,7 +158,9 @@ impl PipelineSettings {
         if obstacles == 0 { self.steps } else { self.obstacle_steps }
     }
 
-    /// Threads for a problem with `obstacles` obstacles (at least 1).
+    /// Threads for a problem with `obstacles` obstacles (at least 1). The
+    /// pipeline passes the obstacles its networks see, as for the
+    /// candidates, steps and initialiser.
     pub fn threads_for(&self, obstacles: usize) -> usize {
         if obstacles == 0 { self.threads } else { self.obstacle_threads }.max(1)
     }

@@ -53,8 +53,8 @@ impl Blockers {
     }
 
     /// Per cell of the grid, whether its centre is outside every obstacle
-    /// ([`Self::blocks`], evaluated only on the cells of each obstacle's
-    /// bounding box, the others being outside it).
+    /// (as [`Self::blocks`] finds, each obstacle tested only on the cells of
+    /// its bounding box, the others being outside it).
     fn free_cells(&self) -> Vec<bool> {
         let grid = &self.grid;
         let mut free = vec![true; grid.total];
@@ -71,7 +71,7 @@ impl Blockers {
                 for j in low[1]..=high[1] {
                     for i in low[0]..=high[0] {
                         let idx = (k * grid.dims[1] + j) * grid.dims[0] + i;
-                        if free[idx] && self.blocks(&grid.centre(idx)) {
+                        if free[idx] && scaled_norm(self.dim, &(grid.centre(idx) - c), *a, *b) < 1.0 {
                             free[idx] = false;
                         }
                     }
@@ -108,6 +108,8 @@ struct Grid {
     cell: f64,
     dims: [usize; 3],
     total: usize,
+    /// The 8 (2D) or 26 (3D) neighbours of a cell, in the search's order.
+    steps: Vec<Neighbour>,
 }
 
 impl Grid {
@@ -120,7 +122,8 @@ impl Grid {
         for (a, d) in dims.iter_mut().enumerate().take(axes) {
             *d = ((ws.max[a] - ws.min[a]) / cell).ceil() as usize + 1;
         }
-        Self { axes, min: ws.min, max: ws.max, cell, dims, total: dims.iter().product() }
+        let steps = neighbours(axes, &dims);
+        Self { axes, min: ws.min, max: ws.max, cell, dims, total: dims.iter().product(), steps }
     }
 
     /// The centre of cell `idx` (clamped to the workspace).
@@ -164,14 +167,15 @@ struct Neighbour {
     length: f64,
 }
 
-/// The 8 (2D) or 26 (3D) neighbours of a cell, in the search's order.
-fn neighbours(grid: &Grid) -> Vec<Neighbour> {
-    let count = 3usize.pow(grid.axes as u32);
+/// The 8 (2D) or 26 (3D) neighbours of a cell of a grid of `dims` cells
+/// per axis, in the search's order.
+fn neighbours(axes: usize, dims: &[usize; 3]) -> Vec<Neighbour> {
+    let count = 3usize.pow(axes as u32);
     let mut out = Vec::with_capacity(count - 1);
     for code in 0..count {
         let mut rest = code;
         let mut offset = [0i64; 3];
-        for o in offset.iter_mut().take(grid.axes) {
+        for o in offset.iter_mut().take(axes) {
             *o = (rest % 3) as i64 - 1;
             rest /= 3;
         }
@@ -179,8 +183,8 @@ fn neighbours(grid: &Grid) -> Vec<Neighbour> {
             continue;
         }
         let mut delta = 0i64;
-        for a in (0..grid.axes).rev() {
-            delta = delta * grid.dims[a] as i64 + offset[a];
+        for a in (0..axes).rev() {
+            delta = delta * dims[a] as i64 + offset[a];
         }
         let length = offset.iter().map(|o| (o * o) as f64).sum::<f64>().sqrt();
         out.push(Neighbour { offset, delta, length });
@@ -192,14 +196,18 @@ fn neighbours(grid: &Grid) -> Vec<Neighbour> {
 /// for `team`) within the workspace, shortened by line of sight. `None`
 /// when the goal is walled off on the grid.
 pub fn route(team: &Team, blockers: &Blockers, start: &Vector3<f64>, goal: &Vector3<f64>) -> Option<Vec<Vector3<f64>>> {
-    debug_assert_eq!(team.dim.axes(), blockers.grid.axes, "blockers built for this team");
+    debug_assert!(
+        team.dim.axes() == blockers.grid.axes
+            && team.workspace.min == blockers.grid.min
+            && team.workspace.max == blockers.grid.max,
+        "blockers built for this team"
+    );
     let grid = &blockers.grid;
     let from = grid.index_of(start);
     let to = grid.index_of(goal);
     let free = blockers.free.get_or_init(|| blockers.free_cells());
     let open = |v: usize| v == from || v == to || free[v];
     // Dijkstra over the 8- (2D) or 26- (3D) neighbourhood.
-    let steps = neighbours(grid);
     let mut dist = vec![f64::INFINITY; grid.total];
     let mut prev = vec![usize::MAX; grid.total];
     let mut heap = BinaryHeap::new();
@@ -213,7 +221,7 @@ pub fn route(team: &Team, blockers: &Blockers, start: &Vector3<f64>, goal: &Vect
             continue;
         }
         let coord = grid.coordinates(u);
-        for step in &steps {
+        for step in &grid.steps {
             let inside = (0..grid.axes).all(|a| {
                 let c = coord[a] as i64 + step.offset[a];
                 c >= 0 && c < grid.dims[a] as i64

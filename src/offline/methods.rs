@@ -35,7 +35,8 @@ pub enum Method {
     /// the SF alone).
     SafetyFilter,
     /// The Flow-Opt pipeline: flow samples, ranking, learned SF
-    /// initialisation, safety filter, selection.
+    /// initialisation (where there are obstacles; `--init-without-obstacles`
+    /// everywhere), safety filter, selection.
     Flowopt,
     /// The pipeline with the SF started from the flow samples themselves
     /// (zero multiplier): the paper's ablation.

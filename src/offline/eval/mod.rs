@@ -351,7 +351,7 @@ fn header(f: &HeaderFacts) -> String {
     let settle = match pipeline.settle {
         Settle::FirstVerified => {
             "taking the candidates in rank order and returning the best-ranked one that verifies (the candidates \
-             are sampled on the same threads)"
+             are sampled on the filter's threads)"
         }
         Settle::Smoothest => "returning the verified plan with the lowest smoothness",
     };
@@ -620,7 +620,7 @@ fn throughput(args: &EvalArgs, command: &str) -> Result<String> {
          returned plan verified. The paper (RTX 5090): 50 x 10 candidates sampled in under 60 ms, 250 SF \
          refinements in under 300 ms.\n\n",
         table.render(),
-        learned.settings(Method::Flowopt).threads,
+        learned.settings(Method::Flowopt).threads_for(0),
         PROBLEMS * REFINED
     ))
 }
