@@ -470,7 +470,9 @@ impl FlowOpt {
     ) -> Result<Vec<PipelineOutcome>, ModelError> {
         let Some(first) = queries.first() else { return Ok(Vec::new()) };
         let started = Instant::now();
-        let count = settings.candidates_for(first.seen.obstacles.len()).max(1);
+        // The settings that depend on the obstacles follow those the networks see.
+        let m = first.seen.obstacles.len();
+        let count = settings.candidates_for(m).max(1);
         let top_k = settings.top_k.clamp(1, count);
         let (tokens, robots, obstacles) = self.sample(queries, count, settings, seed, budget)?;
         let raw = self.stats.token.denormalise(&tokens)?.flatten_all()?.to_vec1::<f32>()?;
@@ -522,9 +524,7 @@ impl FlowOpt {
                     AmState { lambda: vec![0.0; xi.len()], xi }
                 })
                 .collect();
-            let (Some(init), true) = (&self.init, settings.init_for(first.seen.obstacles.len())) else {
-                return Ok(starts);
-            };
+            let (Some(init), true) = (&self.init, settings.init_for(m)) else { return Ok(starts) };
             let index = |f: &dyn Fn(&Job) -> usize| {
                 Tensor::new(ids.iter().map(|&j| f(&jobs[j]) as u32).collect::<Vec<_>>().as_slice(), &Device::Cpu)
             };
@@ -551,9 +551,7 @@ impl FlowOpt {
         // candidate, only those of the first wave (one per thread), the
         // others when (if) their turn comes.
         let eager: Vec<usize> = (0..jobs.len())
-            .filter(|&j| {
-                settings.settle == Settle::Smoothest || jobs[j].rank < settings.threads_for(first.seen.obstacles.len())
-            })
+            .filter(|&j| settings.settle == Settle::Smoothest || jobs[j].rank < settings.threads_for(m))
             .collect();
         let mut ready: Vec<Option<AmState>> = jobs.iter().map(|_| None).collect();
         for (j, start) in eager.iter().zip(start_of(&eager)?) {

@@ -406,7 +406,8 @@ pub fn train_flow(
 /// A model card's entry for weights a training read (the policy it
 /// fine-tuned, the policy an initialiser learnt from): path and sha256.
 fn card_input(path: &Path) -> Result<(String, String), ModelError> {
-    Ok((path.display().to_string(), crate::dataset::hash_files(&[path.to_path_buf()])?))
+    let file = crate::dataset::WeightFile::hashed(path)?;
+    Ok((file.path.display().to_string(), file.sha256))
 }
 
 /// Writes `out.json`, the model card of the weights at `out`.

@@ -58,11 +58,11 @@ impl Blockers {
     fn free_cells(&self) -> Vec<bool> {
         let grid = &self.grid;
         let mut free = vec![true; grid.total];
-        for (c, a, b) in &self.obstacles {
+        for &(c, a, b) in &self.obstacles {
             let mut low = [0usize; 3];
             let mut high = [0usize; 3];
             for axis in 0..grid.axes {
-                let half = if axis == 2 { *b } else { *a };
+                let half = if axis == 2 { b } else { a };
                 let cell = |x: f64| ((x - grid.min[axis]) / grid.cell).clamp(0.0, (grid.dims[axis] - 1) as f64);
                 low[axis] = cell(c[axis] - half).floor() as usize;
                 high[axis] = cell(c[axis] + half).ceil() as usize;
@@ -71,7 +71,7 @@ impl Blockers {
                 for j in low[1]..=high[1] {
                     for i in low[0]..=high[0] {
                         let idx = (k * grid.dims[1] + j) * grid.dims[0] + i;
-                        if free[idx] && scaled_norm(self.dim, &(grid.centre(idx) - c), *a, *b) < 1.0 {
+                        if free[idx] && self.inside(&grid.centre(idx), &c, a, b) {
                             free[idx] = false;
                         }
                     }
@@ -88,7 +88,13 @@ impl Blockers {
 
     /// Whether `p` is inside an inflated obstacle.
     pub fn blocks(&self, p: &Vector3<f64>) -> bool {
-        self.obstacles.iter().any(|(c, a, b)| scaled_norm(self.dim, &(p - c), *a, *b) < 1.0)
+        self.obstacles.iter().any(|(c, a, b)| self.inside(p, c, *a, *b))
+    }
+
+    /// Whether `p` is inside the inflated obstacle centred at `c` with
+    /// separations `(a, b)`.
+    fn inside(&self, p: &Vector3<f64>, c: &Vector3<f64>, a: f64, b: f64) -> bool {
+        scaled_norm(self.dim, &(p - c), a, b) < 1.0
     }
 
     /// Whether the segment `p -> q` passes through an inflated obstacle
@@ -192,16 +198,10 @@ fn neighbours(axes: usize, dims: &[usize; 3]) -> Vec<Neighbour> {
     out
 }
 
-/// A grid shortest path from `start` to `goal` around `blockers` (built
-/// for `team`) within the workspace, shortened by line of sight. `None`
-/// when the goal is walled off on the grid.
-pub fn route(team: &Team, blockers: &Blockers, start: &Vector3<f64>, goal: &Vector3<f64>) -> Option<Vec<Vector3<f64>>> {
-    debug_assert!(
-        team.dim.axes() == blockers.grid.axes
-            && team.workspace.min == blockers.grid.min
-            && team.workspace.max == blockers.grid.max,
-        "blockers built for this team"
-    );
+/// A shortest path from `start` to `goal` around `blockers` on the routing
+/// grid of the team they were built for (within its workspace), shortened
+/// by line of sight. `None` when the goal is walled off on the grid.
+pub fn route(blockers: &Blockers, start: &Vector3<f64>, goal: &Vector3<f64>) -> Option<Vec<Vector3<f64>>> {
     let grid = &blockers.grid;
     let from = grid.index_of(start);
     let to = grid.index_of(goal);
@@ -372,7 +372,7 @@ mod tests {
         let blockers = Blockers::new(&team, &[wall], 0.05, 0.0);
         let (start, goal) = (Vector3::new(-0.8, 0.01, 0.0), Vector3::new(0.8, 0.01, 0.0));
         assert!(blockers.segment_blocked(&start, &goal));
-        let path = route(&team, &blockers, &start, &goal).unwrap();
+        let path = route(&blockers, &start, &goal).unwrap();
         assert!(path.len() >= 3);
         for w in path.windows(2) {
             assert!(!blockers.segment_blocked(&w[0], &w[1]), "segment {:?} -> {:?}", w[0], w[1]);
@@ -418,7 +418,7 @@ mod tests {
             })
             .collect();
         let blockers = Blockers::new(&team, &ring, 0.05, 0.0);
-        assert!(route(&team, &blockers, &Vector3::new(-0.8, 0.0, 0.0), &Vector3::new(0.5, 0.0, 0.0)).is_none());
+        assert!(route(&blockers, &Vector3::new(-0.8, 0.0, 0.0), &Vector3::new(0.5, 0.0, 0.0)).is_none());
     }
 
     #[test]

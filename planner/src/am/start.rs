@@ -209,7 +209,7 @@ impl Engine {
     /// `None` when its goal is walled off on the routing grid.
     fn routed_curve(&self, problem: &Problem, blockers: &Blockers, b: &[f64], i: usize) -> Option<Vec<f64>> {
         let (n, nx) = (self.team.robots, self.n_xi);
-        let path = route(&self.team, blockers, &problem.starts[i].position, &problem.goals[i])?;
+        let path = route(blockers, &problem.starts[i].position, &problem.goals[i])?;
         let mut curve = vec![0.0; self.team.dim.axes() * nx];
         for (a, q) in self.fitter.timed_samples(&path, self.team.dim.axes()).iter().enumerate() {
             let row = a * n + i;
