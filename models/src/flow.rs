@@ -6,7 +6,12 @@
 //!   per-robot embedding, added to the token and, with the time embedding,
 //!   driving every block's adaLN; obstacles go through a PointNet (a shared
 //!   MLP per obstacle row) and are read by cross-attention, so the model is
-//!   invariant to obstacle order and count.
+//!   invariant to obstacle order and count. With [`FlowConfig::pairs`] a
+//!   third MLP reads each robot-obstacle pair row ([`crate::pairs`]): their
+//!   sum over the obstacles joins the robot's embedding, and each robot
+//!   attends to its own pairs (obstacle token plus pair embedding).
+//! - The cross-attentions' keys and values depend on the problem only: they
+//!   are projected once per problem ([`FlowModel::encode`]), not per step.
 //! - No robot-index embedding: tokens are told apart by their conditions, so
 //!   the model is permutation-equivariant and serves any team size.
 //! - Sampling integrates `dx/dt = v(x, t)` from noise at `t = 0` to `t = 1`
@@ -18,6 +23,7 @@ use candle_nn::VarBuilder;
 use serde::{Deserialize, Serialize};
 
 use crate::layers::{Block, Dense, Mlp, modulate, norm, time_embedding};
+use crate::tokens::TokenSpace;
 
 /// Sizes of the flow model.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -36,12 +42,30 @@ pub struct FlowConfig {
     pub hidden: usize,
     /// Sinusoidal time frequencies.
     pub time_freqs: usize,
+    /// What the tokens hold (weights from before the field: coefficients).
+    #[serde(default)]
+    pub tokens: TokenSpace,
+    /// Whether it reads the robot-obstacle pair rows (weights from before
+    /// the field: no).
+    #[serde(default)]
+    pub pairs: bool,
 }
 
 impl FlowConfig {
-    /// The default size for this CPU (see docs/LEARNED.md for the timing).
+    /// The default size for this CPU (see docs/LEARNED.md for the timing),
+    /// in positions and with pair rows.
     pub fn small(dim: usize, n_xi: usize) -> Self {
-        Self { dim, n_xi, width: 128, heads: 4, layers: 3, hidden: 256, time_freqs: 32 }
+        Self {
+            dim,
+            n_xi,
+            width: 128,
+            heads: 4,
+            layers: 3,
+            hidden: 256,
+            time_freqs: 32,
+            tokens: TokenSpace::Positions,
+            pairs: true,
+        }
     }
 
     /// Values per plan token.
@@ -63,10 +87,48 @@ pub enum Solver {
 /// The conditioning of one batch, encoded once.
 #[derive(Debug, Clone)]
 pub struct Encoded {
-    /// Per-robot start-goal embeddings, `[B or 1, n, D]`.
+    /// Per-robot embeddings, `[B or 1, n, D]`.
     pub robots: Tensor,
-    /// Obstacle tokens, `[B, m, D]`, or `None` without obstacles.
-    pub obstacles: Option<Tensor>,
+    /// Per block, the cross-attention's keys and values of the obstacles
+    /// (`[B or 1, m, 2D]`, or one context per robot with pair rows,
+    /// `[B or 1, n, m, 2D]`); `None` without obstacles.
+    pub obstacles: Option<Vec<Tensor>>,
+}
+
+impl Encoded {
+    /// Every problem's conditioning repeated for its `count` candidates
+    /// (problem-major).
+    pub fn repeat_each(&self, count: usize) -> Result<Self> {
+        let each = |t: &Tensor| repeat_each(t, count);
+        Ok(Self {
+            robots: each(&self.robots)?,
+            obstacles: self.obstacles.as_ref().map(|o| o.iter().map(each).collect()).transpose()?,
+        })
+    }
+
+    /// The conditioning of candidates `first..first + len` (a conditioning
+    /// broadcast over the batch stays as it is).
+    pub fn rows(&self, first: usize, len: usize) -> Result<Self> {
+        let rows = |t: &Tensor| if t.dim(0)? == 1 { Ok(t.clone()) } else { t.narrow(0, first, len) };
+        Ok(Self {
+            robots: rows(&self.robots)?,
+            obstacles: self.obstacles.as_ref().map(|o| o.iter().map(rows).collect()).transpose()?,
+        })
+    }
+}
+
+/// `t` (`[P, ...]`) with each of its rows repeated `count` times in a row.
+fn repeat_each(t: &Tensor, count: usize) -> Result<Tensor> {
+    if count == 1 {
+        return Ok(t.clone());
+    }
+    let mut dims = t.dims().to_vec();
+    let rows = dims[0];
+    dims.insert(1, count);
+    let mut flat = dims.clone();
+    flat.remove(1);
+    flat[0] = rows * count;
+    t.unsqueeze(1)?.broadcast_as(dims)?.contiguous()?.reshape(flat)
 }
 
 /// The velocity field network.
@@ -76,6 +138,7 @@ pub struct FlowModel {
     token_in: Dense,
     robot_encoder: Mlp,
     obstacle_encoder: Mlp,
+    pair_encoder: Option<Mlp>,
     time: Mlp,
     blocks: Vec<Block>,
     final_modulation: Dense,
@@ -92,6 +155,11 @@ impl FlowModel {
             token_in: Dense::new(vb.pp("token_in"), config.token_width(), d)?,
             robot_encoder: Mlp::new(vb.pp("robot_encoder"), crate::coding::robot_width(dim), d, d)?,
             obstacle_encoder: Mlp::new(vb.pp("obstacle_encoder"), crate::coding::obstacle_width(dim), d, d)?,
+            pair_encoder: if config.pairs {
+                Some(Mlp::new(vb.pp("pair_encoder"), crate::pairs::pair_width(dim), d, d)?)
+            } else {
+                None
+            },
             time: Mlp::new(vb.pp("time"), 2 * config.time_freqs, d, d)?,
             blocks: (0..config.layers)
                 .map(|l| Block::new(vb.pp(format!("block{l}")), d, config.heads, config.hidden))
@@ -106,11 +174,28 @@ impl FlowModel {
         &self.config
     }
 
-    /// Encodes normalised robot rows (`[B, n, 3 dim]`) and obstacle rows
-    /// (`[B, m, 2 dim + 2]`; `m = 0` for none).
-    pub fn encode(&self, robots: &Tensor, obstacles: &Tensor) -> Result<Encoded> {
-        let obstacles = if obstacles.dim(1)? == 0 { None } else { Some(self.obstacle_encoder.forward(obstacles)?) };
-        Ok(Encoded { robots: self.robot_encoder.forward(robots)?, obstacles })
+    /// Encodes normalised robot rows (`[B, n, 3 dim]`), obstacle rows
+    /// (`[B, m, 2 dim + 2]`; `m = 0` for none) and, for a policy with
+    /// [`FlowConfig::pairs`], the pair rows (`[B, n, m, pair_width]`).
+    pub fn encode(&self, robots: &Tensor, obstacles: &Tensor, pairs: Option<&Tensor>) -> Result<Encoded> {
+        let mut embedding = self.robot_encoder.forward(robots)?;
+        if obstacles.dim(1)? == 0 {
+            return Ok(Encoded { robots: embedding, obstacles: None });
+        }
+        let mut context = self.obstacle_encoder.forward(obstacles)?;
+        if let Some(encoder) = &self.pair_encoder {
+            let Some(pairs) = pairs else { candle_core::bail!("this flow policy reads pair rows") };
+            let pairs = encoder.forward(pairs)?;
+            embedding = (embedding + pairs.sum(2)?)?;
+            context = pairs.broadcast_add(&context.unsqueeze(1)?)?;
+        }
+        let obstacles = self.blocks.iter().map(|b| b.obstacle_context(&context)).collect::<Result<_>>()?;
+        Ok(Encoded { robots: embedding, obstacles: Some(obstacles) })
+    }
+
+    /// Whether it reads pair rows.
+    pub fn reads_pairs(&self) -> bool {
+        self.pair_encoder.is_some()
     }
 
     /// The velocity at normalised tokens `x` (`[B, n, W]`) and times `t`
@@ -119,8 +204,8 @@ impl FlowModel {
         let time = self.time.forward(&time_embedding(t, self.config.time_freqs)?)?.unsqueeze(1)?;
         let c = encoded.robots.broadcast_add(&time)?.silu()?;
         let mut h = self.token_in.forward(x)?.broadcast_add(&encoded.robots)?;
-        for block in &self.blocks {
-            h = block.forward(&h, &c, encoded.obstacles.as_ref())?;
+        for (k, block) in self.blocks.iter().enumerate() {
+            h = block.forward(&h, &c, encoded.obstacles.as_ref().map(|o| &o[k]))?;
         }
         let m = self.final_modulation.forward(&c)?.chunk(2, candle_core::D::Minus1)?;
         self.head.forward(&modulate(&norm(&h)?, &m[0], &m[1])?)

@@ -92,7 +92,11 @@ impl InitModel {
     pub fn forward(&self, tokens: &Tensor, robots: &Tensor, obstacles: &Tensor) -> Result<InitOutput> {
         let (b, n, _) = tokens.dims3()?;
         let cond = self.robot_encoder.forward(robots)?;
-        let obstacles = if obstacles.dim(1)? == 0 { None } else { Some(self.obstacle_encoder.forward(obstacles)?) };
+        let obstacles = if obstacles.dim(1)? == 0 {
+            None
+        } else {
+            Some(self.block.obstacle_context(&self.obstacle_encoder.forward(obstacles)?)?)
+        };
         let h = self.token_in.forward(tokens)?.broadcast_add(&cond)?;
         let h = self.block.forward(&h, &cond.silu()?, obstacles.as_ref())?;
         let lambda = (self.lambda_head.forward(&h)? * self.config.lambda_scale)?

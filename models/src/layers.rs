@@ -69,7 +69,10 @@ pub fn modulate(x: &Tensor, shift: &Tensor, scale: &Tensor) -> Result<Tensor> {
     x.broadcast_mul(&(scale + 1.0)?)?.broadcast_add(shift)
 }
 
-/// Multi-head attention of `x` (`[B, n, D]`) over a context (`[B, m, D]`).
+/// Multi-head attention of `x` (`[B, n, D]`) over a context: the same
+/// context for every token (`[B, m, D]`), or one per token (`[B, n, m, D]`).
+/// The context's keys and values can be projected once ([`Attention::keys_values`])
+/// and reused for every call that reads the same context.
 #[derive(Debug, Clone)]
 pub struct Attention {
     q: Dense,
@@ -91,18 +94,49 @@ impl Attention {
         })
     }
 
+    /// The keys and values of `context` (`[B, m, D]` or `[B, n, m, D]`; the
+    /// result has its shape with `2 D` last).
+    pub fn keys_values(&self, context: &Tensor) -> Result<Tensor> {
+        self.kv.forward(context)
+    }
+
     /// Attends from `x` to `context`.
     pub fn forward(&self, x: &Tensor, context: &Tensor) -> Result<Tensor> {
+        self.attend(x, &self.keys_values(context)?)
+    }
+
+    /// Attends from `x` (`[B, n, D]`) to projected keys and values
+    /// (`[B or 1, m, 2D]` shared by the tokens, or `[B or 1, n, m, 2D]`, one
+    /// context per token).
+    pub fn attend(&self, x: &Tensor, kv: &Tensor) -> Result<Tensor> {
         let (b, n, d) = x.dims3()?;
-        let m = context.dim(1)?;
         let (h, dh) = (self.heads, d / self.heads);
-        let q = self.q.forward(x)?.reshape((b, n, h, dh))?.transpose(1, 2)?.contiguous()?;
-        let kv = self.kv.forward(context)?.reshape((b, m, 2, h, dh))?;
-        let k = kv.narrow(2, 0, 1)?.squeeze(2)?.permute((0, 2, 3, 1))?.contiguous()?;
-        let v = kv.narrow(2, 1, 1)?.squeeze(2)?.transpose(1, 2)?.contiguous()?;
-        let att = (q.matmul(&k)? * (1.0 / (dh as f64).sqrt()))?;
-        let att = candle_nn::ops::softmax(&att, D::Minus1)?;
-        let y = att.matmul(&v)?.transpose(1, 2)?.reshape((b, n, d))?;
+        let scale = 1.0 / (dh as f64).sqrt();
+        let q = self.q.forward(x)?;
+        let y = if kv.rank() == 3 {
+            let (bk, m, _) = kv.dims3()?;
+            let q = q.reshape((b, n, h, dh))?.transpose(1, 2)?.contiguous()?;
+            let kv = kv.reshape((bk, m, 2, h, dh))?;
+            let k = kv.narrow(2, 0, 1)?.squeeze(2)?.permute((0, 2, 3, 1))?.contiguous()?;
+            let v = kv.narrow(2, 1, 1)?.squeeze(2)?.transpose(1, 2)?.contiguous()?;
+            let att = candle_nn::ops::softmax(&(q.broadcast_matmul(&k)? * scale)?, D::Minus1)?;
+            att.broadcast_matmul(&v)?.transpose(1, 2)?.reshape((b, n, d))?
+        } else {
+            // Token i of every candidate that shares a context attends to
+            // the same keys: one small product per (context, token, head)
+            // over the `g` candidates.
+            let (bk, nk, m, _) = kv.dims4()?;
+            if nk != n || b % bk != 0 {
+                candle_core::bail!("{nk} contexts of {bk} for {n} tokens of {b}");
+            }
+            let (g, batch) = (b / bk, bk * n * h);
+            let q = q.reshape((bk, g, n, h, dh))?.permute((0, 2, 3, 1, 4))?.contiguous()?.reshape((batch, g, dh))?;
+            let kv = kv.reshape((bk, n, m, 2, h, dh))?;
+            let k = kv.narrow(3, 0, 1)?.squeeze(3)?.permute((0, 1, 3, 4, 2))?.contiguous()?.reshape((batch, dh, m))?;
+            let v = kv.narrow(3, 1, 1)?.squeeze(3)?.permute((0, 1, 3, 2, 4))?.contiguous()?.reshape((batch, m, dh))?;
+            let att = candle_nn::ops::softmax(&(q.matmul(&k)? * scale)?, D::Minus1)?;
+            att.matmul(&v)?.reshape((bk, n, h, g, dh))?.permute((0, 3, 1, 2, 4))?.reshape((b, n, d))?
+        };
         self.out.forward(&y)
     }
 }
@@ -129,14 +163,21 @@ impl Block {
         })
     }
 
+    /// The cross-attention's keys and values of obstacle tokens (see
+    /// [`Attention::keys_values`]), for [`Block::forward`].
+    pub fn obstacle_context(&self, obstacles: &Tensor) -> Result<Tensor> {
+        self.cross.keys_values(obstacles)
+    }
+
     /// The block on tokens `x` (`[B, n, D]`) with activated conditioning
-    /// `c` (`[B or 1, n, D]`) and obstacle tokens (`[B, m, D]`, m >= 1).
+    /// `c` (`[B or 1, n, D]`) and the obstacles' context from
+    /// [`Block::obstacle_context`] (m >= 1).
     pub fn forward(&self, x: &Tensor, c: &Tensor, obstacles: Option<&Tensor>) -> Result<Tensor> {
         let m = self.modulation.forward(c)?.chunk(6, D::Minus1)?;
         let h = modulate(&norm(x)?, &m[0], &m[1])?;
         let mut x = (x + self.attention.forward(&h, &h)?.broadcast_mul(&m[2])?)?;
         if let Some(o) = obstacles {
-            x = (&x + self.cross.forward(&norm(&x)?, o)?)?;
+            x = (&x + self.cross.attend(&norm(&x)?, o)?)?;
         }
         let h = modulate(&norm(&x)?, &m[3], &m[4])?;
         &x + self.mlp.forward(&h)?.broadcast_mul(&m[5])?
@@ -186,4 +227,38 @@ pub fn noise(rng: &mut ChaCha8Rng, shape: &[usize], device: &Device) -> Result<T
     let count = shape.iter().product();
     let values: Vec<f32> = (0..count).map(|_| StandardNormal.sample(rng)).collect();
     Tensor::from_vec(values, shape, device)?.to_dtype(DType::F32)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use candle_core::{DType, Device};
+    use candle_nn::VarMap;
+
+    fn close(a: &Tensor, b: &Tensor) -> f32 {
+        (a - b).unwrap().abs().unwrap().flatten_all().unwrap().max(0).unwrap().to_scalar::<f32>().unwrap()
+    }
+
+    #[test]
+    fn each_token_attends_to_its_own_context() {
+        let vars = VarMap::new();
+        let vb = VarBuilder::from_varmap(&vars, DType::F32, &Device::Cpu);
+        let (width, heads, b, n, m) = (8, 2, 6, 3, 4);
+        let attention = Attention::new(vb, width, heads, false).unwrap();
+        let x = Tensor::randn(0f32, 1.0, (b, n, width), &Device::Cpu).unwrap();
+        // Per token, shared by the candidates (`[1, n, m, D]`) and one per
+        // candidate (`[B, n, m, D]`): token i's output is the shared-context
+        // attention of every token to context i, at row i.
+        let context = Tensor::randn(0f32, 1.0, (1, n, m, width), &Device::Cpu).unwrap();
+        let each = context.repeat((b, 1, 1, 1)).unwrap();
+        for kv in [attention.keys_values(&context).unwrap(), attention.keys_values(&each).unwrap()] {
+            let got = attention.attend(&x, &kv).unwrap();
+            for i in 0..n {
+                let own = context.narrow(1, i, 1).unwrap().squeeze(1).unwrap();
+                let want = attention.forward(&x, &own.repeat((b, 1, 1)).unwrap()).unwrap();
+                let diff = close(&got.narrow(1, i, 1).unwrap(), &want.narrow(1, i, 1).unwrap());
+                assert!(diff < 1e-5, "token {i}: {diff}");
+            }
+        }
+    }
 }

@@ -1,6 +1,9 @@
 //! The learned half of Flow-Opt (METHOD.md sections 3-5), in candle:
 //!
 //! - [`coding`]: how problems and plans are presented to the networks;
+//! - [`tokens`]: what the flow policy's tokens hold (coefficients or
+//!   positions);
+//! - [`pairs`]: where each obstacle lies against each robot's reference;
 //! - [`dataset`], [`datagen`]: optimiser solutions as training data;
 //! - [`layers`]: the building blocks, laid out for inference;
 //! - [`flow`]: the flow-matching policy and its samplers;
@@ -16,8 +19,10 @@ pub mod dataset;
 pub mod flow;
 pub mod init;
 pub mod layers;
+pub mod pairs;
 pub mod pipeline;
 pub mod runtime;
+pub mod tokens;
 pub mod train;
 pub mod unrolled;
 pub mod weights;

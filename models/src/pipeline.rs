@@ -21,9 +21,10 @@ use serde::{Deserialize, Serialize};
 
 use crate::ModelError;
 use crate::coding::{Coding, conditions, obstacle_width, robot_width};
-use crate::flow::{Encoded, FlowConfig, FlowModel, Solver};
+use crate::flow::{FlowConfig, FlowModel, Solver};
 use crate::init::{InitConfig, InitModel};
 use crate::layers::noise;
+use crate::tokens::TokenMap;
 use crate::weights::{Stats, load};
 
 /// The default weight of the safety filter's smoothness-weighted metric
@@ -271,6 +272,7 @@ impl PipelineOutcome {
 pub struct FlowOpt {
     flow: FlowModel,
     stats: Stats,
+    tokens: TokenMap,
     init: Option<InitModel>,
 }
 
@@ -280,6 +282,7 @@ impl FlowOpt {
     pub fn load(flow: &Path, init: Option<&Path>) -> Result<Self, ModelError> {
         let f = load::<FlowConfig>(flow, "flow")?;
         let model = FlowModel::new(f.vars, &f.config)?;
+        let tokens = TokenMap::new(f.config.tokens, f.config.dim, f.config.n_xi)?;
         let init = match init {
             Some(path) => {
                 let i = load::<InitConfig>(path, "init")?;
@@ -294,7 +297,7 @@ impl FlowOpt {
             }
             None => None,
         };
-        Ok(Self { flow: model, stats: f.stats, init })
+        Ok(Self { flow: model, stats: f.stats, tokens, init })
     }
 
     /// Whether an initialiser is loaded.
@@ -317,13 +320,14 @@ impl FlowOpt {
         Ok(())
     }
 
-    /// Samples `count` normalised token sets per query with noise seeded
-    /// by `seed`, all queries in one batch; returns them `[P count, n, W]`
-    /// (query-major) with the normalised condition rows `[P, n, .]` and
-    /// `[P, m, .]`.
+    /// Samples `count` normalised token sets per query (whose reference
+    /// curves are `references`) with noise seeded by `seed`, all queries in
+    /// one batch; returns them `[P count, n, W]` (query-major) with the
+    /// normalised condition rows `[P, n, .]` and `[P, m, .]`.
     fn sample(
         &self,
         queries: &[Query<'_>],
+        references: &[Vec<f64>],
         count: usize,
         settings: &PipelineSettings,
         seed: u64,
@@ -345,14 +349,17 @@ impl FlowOpt {
             (p, m, obstacle_width(dim)),
             &Device::Cpu,
         )?)?;
-        let encoded = self.flow.encode(&robots, &obstacles)?;
-        // One problem's robot conditioning broadcasts over its candidates
-        // (the per-robot adaLN then runs once, not once per candidate);
-        // several problems need it per candidate.
-        let encoded = Encoded {
-            robots: if p == 1 { encoded.robots } else { repeat_each(&encoded.robots, count)? },
-            obstacles: encoded.obstacles.as_ref().map(|o| repeat_each(o, count)).transpose()?,
+        let pairs = if self.flow.reads_pairs() && m > 0 {
+            let rows = queries.iter().zip(references).flat_map(|(q, r)| crate::pairs::pair_rows(q.seen, r)).collect();
+            Some(Tensor::from_vec(rows, (p, n, m, crate::pairs::pair_width(dim)), &Device::Cpu)?)
+        } else {
+            None
         };
+        let encoded = self.flow.encode(&robots, &obstacles, pairs.as_ref())?;
+        // One problem's conditioning broadcasts over its candidates (the
+        // per-robot adaLN then runs once, not once per candidate); several
+        // problems need it per candidate.
+        let encoded = if p == 1 { encoded } else { encoded.repeat_each(count)? };
         let steps = settings.steps_for(m);
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         let x0 =
@@ -367,13 +374,9 @@ impl FlowOpt {
             if len == 0 {
                 return Ok(None);
             }
-            let rows_of = |x: &Tensor| x.narrow(0, first, len);
-            let part = Encoded {
-                robots: if p == 1 { encoded.robots.clone() } else { rows_of(&encoded.robots)? },
-                obstacles: encoded.obstacles.as_ref().map(rows_of).transpose()?,
-            };
-            let sampled =
-                self.flow.sample(&rows_of(&x0)?, &part, steps, settings.solver, &|| budget.spent().is_some())?;
+            let part = encoded.rows(first, len)?;
+            let x = x0.narrow(0, first, len)?;
+            let sampled = self.flow.sample(&x, &part, steps, settings.solver, &|| budget.spent().is_some())?;
             Ok(Some(sampled.ok_or(ModelError::Stopped)?))
         })?;
         let tokens = if parts.len() == 1 { parts[0].clone() } else { Tensor::cat(&parts, 0)? };
@@ -474,20 +477,22 @@ impl FlowOpt {
         let m = first.seen.obstacles.len();
         let count = settings.candidates_for(m).max(1);
         let top_k = settings.top_k.clamp(1, count);
-        let (tokens, robots, obstacles) = self.sample(queries, count, settings, seed, budget)?;
-        let raw = self.stats.token.denormalise(&tokens)?.flatten_all()?.to_vec1::<f32>()?;
+        // The seen and enforced problems share their starts and goals, so
+        // their reference curves.
+        let coding = Coding::new(&first.enforced.team)?;
+        let references: Vec<Vec<f64>> = queries.iter().map(|q| coding.reference(q.enforced)).collect();
+        let (tokens, robots, obstacles) = self.sample(queries, &references, count, settings, seed, budget)?;
+        let raw = self.tokens.to_coefficients(&self.stats.token.denormalise(&tokens)?)?;
+        let raw = raw.flatten_all()?.to_vec1::<f32>()?;
         let sampled = Instant::now();
 
-        let coding = Coding::new(&first.enforced.team)?;
         let width = raw.len() / (count * queries.len());
-        let mut references = Vec::with_capacity(queries.len());
         let mut samples = Vec::with_capacity(queries.len());
         let mut jobs = Vec::with_capacity(queries.len() * top_k);
-        for (qi, q) in queries.iter().enumerate() {
-            let reference = coding.reference(q.enforced);
+        for (qi, (q, reference)) in queries.iter().zip(&references).enumerate() {
             let mut decoded: Vec<Vec<f64>> = raw[qi * count * width..(qi + 1) * count * width]
                 .chunks_exact(width)
-                .map(|t| coding.decode(&reference, t))
+                .map(|t| coding.decode(reference, t))
                 .collect();
             // The initialiser still reads the samples as sampled, its
             // training distribution: fed the rerouted ones it measured 93%
@@ -508,7 +513,6 @@ impl FlowOpt {
                 primal,
                 rank,
             }));
-            references.push(reference);
             samples.push(decoded);
         }
         let ranked = Instant::now();
@@ -535,7 +539,8 @@ impl FlowOpt {
                 &robots.index_select(&query_ids, 0)?,
                 &obstacles.index_select(&query_ids, 0)?,
             )?;
-            let delta = self.stats.token.scale(&out.delta)?.flatten_all()?.to_vec1::<f32>()?;
+            let delta = self.tokens.to_coefficients(&self.stats.token.scale(&out.delta)?)?;
+            let delta = delta.flatten_all()?.to_vec1::<f32>()?;
             let lambda = out.lambda.flatten_all()?.to_vec1::<f32>()?;
             let per = lambda.len() / ids.len();
             for (k, start) in starts.iter_mut().enumerate() {
@@ -656,20 +661,6 @@ fn select(refined: &[Refined], settle: Settle) -> (usize, bool) {
 /// (round 0: `seed` itself).
 fn round_seed(seed: u64, round: usize) -> u64 {
     seed.wrapping_add((round as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15))
-}
-
-/// `[P, ...]` -> `[P count, ...]`, every row repeated `count` times in a row.
-fn repeat_each(t: &Tensor, count: usize) -> candle_core::Result<Tensor> {
-    if count == 1 {
-        return Ok(t.clone());
-    }
-    let mut dims = t.dims().to_vec();
-    let rows = dims[0];
-    dims.insert(1, count);
-    let mut flat = dims.clone();
-    flat.remove(1);
-    flat[0] = rows * count;
-    t.unsqueeze(1)?.broadcast_as(dims)?.contiguous()?.reshape(flat)
 }
 
 /// The safety filter's start of every job: made already, or made by `make`

@@ -23,10 +23,12 @@ use flowopt_planner::am::{AmSettings, Engine, Objective, Prepared};
 use crate::ModelError;
 use crate::coding::Coding;
 use crate::datagen::write_json;
-use crate::dataset::{Bucket, Dataset};
+use crate::dataset::{Bucket, DatagenConfig, Dataset};
 use crate::flow::{FlowConfig, FlowModel};
 use crate::init::{InitConfig, InitModel, tokens_to_coefficients};
 use crate::layers::{initialise, noise};
+use crate::pairs::{pair_rows, pair_width};
+use crate::tokens::TokenMap;
 use crate::unrolled::UnrolledSf;
 use crate::weights::{Columns, Stats, save};
 
@@ -96,33 +98,86 @@ pub struct ModelCard {
     pub metrics: TrainReport,
     /// Training instances and held-out instances.
     pub instances: (usize, usize),
+    /// The command line of the process that trained it (cards from before
+    /// this field: empty).
+    #[serde(default)]
+    pub command: Vec<String>,
 }
 
 /// A bucket split for training, its rows and tokens normalised (the tokens
-/// are what the trained network reads).
+/// are what the trained network reads, in its token space).
 pub(crate) struct Split {
     pub data: Bucket,
     /// Instances `0..train` train, the rest validate.
     pub train: usize,
     /// Index of the dataset it came from.
     pub source: usize,
+    /// Pair rows `[N, n, m, pair_width]` along the references, for a policy
+    /// that reads them and a bucket with obstacles.
+    pub pairs: Option<Tensor>,
+}
+
+/// One batch of a [`Split`].
+pub(crate) struct Batch {
+    /// Robot rows.
+    pub robots: Tensor,
+    /// Obstacle rows.
+    pub obstacles: Tensor,
+    /// Tokens.
+    pub tokens: Tensor,
+    /// Pair rows, if the split has them.
+    pub pairs: Option<Tensor>,
 }
 
 impl Split {
-    /// Robot rows, obstacle rows and tokens of instances `ids`.
-    fn batch(&self, ids: &[u32]) -> Result<(Tensor, Tensor, Tensor), ModelError> {
+    /// The batch of instances `ids`.
+    fn batch(&self, ids: &[u32]) -> Result<Batch, ModelError> {
         let ids = Tensor::new(ids, &Device::Cpu)?;
         let d = &self.data;
-        Ok((
-            d.robot_rows.index_select(&ids, 0)?,
-            d.obstacle_rows.index_select(&ids, 0)?,
-            d.tokens.index_select(&ids, 0)?,
-        ))
+        Ok(Batch {
+            robots: d.robot_rows.index_select(&ids, 0)?,
+            obstacles: d.obstacle_rows.index_select(&ids, 0)?,
+            tokens: d.tokens.index_select(&ids, 0)?,
+            pairs: self.pairs.as_ref().map(|p| p.index_select(&ids, 0)).transpose()?,
+        })
     }
 }
 
-/// Statistics over every bucket of `data`.
-pub fn statistics(data: &[(PathBuf, Dataset)]) -> Result<Stats, ModelError> {
+/// What a flow policy reads of a dataset besides its rows: its token space
+/// and whether pair rows.
+pub(crate) struct Reading {
+    /// The map from the datasets' coefficients to its tokens.
+    pub tokens: TokenMap,
+    /// Whether it reads pair rows.
+    pub pairs: bool,
+}
+
+impl Reading {
+    /// What a policy of `config` reads.
+    pub fn of(config: &FlowConfig) -> Result<Self, ModelError> {
+        Ok(Self { tokens: TokenMap::new(config.tokens, config.dim, config.n_xi)?, pairs: config.pairs })
+    }
+}
+
+/// The pair rows of a bucket's instances along their reference curves
+/// (`None` without obstacles).
+fn bucket_pairs(config: &DatagenConfig, bucket: &Bucket) -> Result<Option<Tensor>, ModelError> {
+    if bucket.obstacles == 0 || bucket.is_empty() {
+        return Ok(None);
+    }
+    let mut rows = Vec::new();
+    let mut width = 0;
+    for &seed in &bucket.seeds {
+        let problem = config.problem(bucket.robots, bucket.obstacles, seed)?;
+        width = pair_width(problem.team.dim.axes());
+        rows.extend(pair_rows(&problem, &Coding::new(&problem.team)?.reference(&problem)));
+    }
+    Ok(Some(Tensor::from_vec(rows, (bucket.len(), bucket.robots, bucket.obstacles, width), &Device::Cpu)?))
+}
+
+/// Statistics over every bucket of `data`, the tokens in the space of
+/// `tokens`.
+pub fn statistics(data: &[(PathBuf, Dataset)], tokens: &TokenMap) -> Result<Stats, ModelError> {
     let buckets: Vec<&Bucket> = data.iter().flat_map(|(_, d)| &d.buckets).collect();
     let cat = |f: &dyn Fn(&Bucket) -> Tensor| -> Result<Tensor, ModelError> {
         let parts: Vec<Tensor> = buckets.iter().map(|b| f(b).flatten_to(1)).collect::<Result<_, _>>()?;
@@ -144,19 +199,25 @@ pub fn statistics(data: &[(PathBuf, Dataset)]) -> Result<Stats, ModelError> {
         Columns::of(&Tensor::cat(&obstacle_parts, 0)?)?
     };
     Ok(Stats {
-        token: Columns::of(&cat(&|b| b.tokens.clone())?)?,
+        token: Columns::of(&tokens.to_model(&cat(&|b| b.tokens.clone())?)?)?,
         robot: Columns::of(&cat(&|b| b.robot_rows.clone())?)?,
         obstacle,
     })
 }
 
-/// Normalises and splits every bucket.
-pub(crate) fn split(data: &[(PathBuf, Dataset)], stats: &Stats, fraction: f64) -> Result<Vec<Split>, ModelError> {
+/// Normalises and splits every bucket, as `reading` reads it.
+pub(crate) fn split(
+    data: &[(PathBuf, Dataset)],
+    stats: &Stats,
+    reading: &Reading,
+    fraction: f64,
+) -> Result<Vec<Split>, ModelError> {
     let mut out = Vec::new();
     for (source, b) in data.iter().enumerate().flat_map(|(i, (_, d))| d.buckets.iter().map(move |b| (i, b))) {
         if b.len() < 2 {
             continue;
         }
+        let pairs = if reading.pairs { bucket_pairs(&data[source].1.manifest.config, b)? } else { None };
         let held = ((b.len() as f64 * fraction).ceil() as usize).clamp(1, b.len() - 1);
         out.push(Split {
             data: Bucket {
@@ -165,10 +226,11 @@ pub(crate) fn split(data: &[(PathBuf, Dataset)], stats: &Stats, fraction: f64) -
                 seeds: b.seeds.clone(),
                 robot_rows: stats.robot.normalise(&b.robot_rows)?,
                 obstacle_rows: stats.obstacle.normalise(&b.obstacle_rows)?,
-                tokens: stats.token.normalise(&b.tokens)?,
+                tokens: stats.token.normalise(&reading.tokens.to_model(&b.tokens)?)?,
             },
             train: b.len() - held,
             source,
+            pairs,
         });
     }
     if out.is_empty() {
@@ -370,7 +432,9 @@ pub fn train_flow(
 ) -> Result<TrainReport, ModelError> {
     let mut vars = VarMap::new();
     let (model, stats, inputs) = match start {
-        FlowStart::Fresh(model) => (model.clone(), statistics(data)?, Vec::new()),
+        FlowStart::Fresh(model) => {
+            (model.clone(), statistics(data, &TokenMap::new(model.tokens, model.dim, model.n_xi)?)?, Vec::new())
+        }
         FlowStart::From(path) => {
             let loaded = crate::weights::load::<FlowConfig>(path, "flow")?;
             (loaded.config, loaded.stats, vec![card_input(path)?])
@@ -381,7 +445,7 @@ pub fn train_flow(
         FlowStart::Fresh(_) => initialise(&vars, cfg.seed)?,
         FlowStart::From(path) => vars.load(path)?,
     }
-    let splits = split(data, &stats, cfg.validation_fraction)?;
+    let splits = split(data, &stats, &Reading::of(&model)?, cfg.validation_fraction)?;
     let report = run_loop(
         "flow",
         &mut vars,
@@ -389,8 +453,9 @@ pub fn train_flow(
         &splits,
         checkpoint_dir,
         |k, ids, rng| {
-            let (robots, obstacles, x1) = splits[k].batch(ids)?;
-            let encoded = net.encode(&robots, &obstacles)?;
+            let b = splits[k].batch(ids)?;
+            let encoded = net.encode(&b.robots, &b.obstacles, b.pairs.as_ref())?;
+            let x1 = b.tokens;
             let x0 = noise(rng, x1.dims(), &Device::Cpu)?;
             let t: Vec<f32> = (0..ids.len()).map(|_| rng.random::<f32>()).collect();
             let t = Tensor::from_vec(t, ids.len(), &Device::Cpu)?;
@@ -430,6 +495,7 @@ pub(crate) fn write_card(
         inputs,
         metrics: report.clone(),
         instances: (splits.iter().map(|s| s.train).sum(), splits.iter().map(|s| s.data.len() - s.train).sum()),
+        command: std::env::args().collect(),
     };
     write_json(&out.with_extension("json"), &card)
 }
@@ -468,7 +534,8 @@ pub fn train_init(
     let flow = crate::weights::load::<FlowConfig>(flow_path, "flow")?;
     let stats = flow.stats.clone();
     let flow_net = FlowModel::new(flow.vars, &flow.config)?;
-    let all = split(data, &stats, cfg.validation_fraction)?;
+    let reading = Reading::of(&flow.config)?;
+    let all = split(data, &stats, &reading, cfg.validation_fraction)?;
     // Keep per bucket the first `per_bucket` training and up to a quarter
     // as many held-out instances, and make their flow samples.
     let mut splits = Vec::new();
@@ -479,7 +546,7 @@ pub fn train_init(
         let train = s.train.min(samples.per_bucket);
         let held = (samples.per_bucket / 4).max(1).min(s.data.len() - s.train);
         let ids: Vec<u32> = (0..train as u32).chain(s.train as u32..(s.train + held) as u32).collect();
-        let (robots, obstacles, _) = s.batch(&ids)?;
+        let Batch { robots, obstacles, pairs, .. } = s.batch(&ids)?;
         // The bucket's instances, in their family's workspace.
         let config = &data[s.source].1.manifest.config;
         let team = config.problem(n, m, s.data.seeds[0])?.team;
@@ -489,12 +556,12 @@ pub fn train_init(
         let engine = Engine::new(&team, m, Objective::filter(init.sf_smoothing), settings)?;
         let sf = UnrolledSf::new(&engine, DType::F32)?;
         let coding = Coding::new(&team)?;
-        let encoded = flow_net.encode(&robots, &obstacles)?;
+        let encoded = flow_net.encode(&robots, &obstacles, pairs.as_ref())?;
         let x0 = noise(&mut rng, &[ids.len(), n, flow.config.token_width()], &Device::Cpu)?;
         let sampled = flow_net
             .sample(&x0, &encoded, samples.flow_steps, crate::flow::Solver::Euler, &|| false)?
             .ok_or_else(|| ModelError::Config("sampling cannot stop here".into()))?;
-        let raw = stats.token.denormalise(&sampled)?;
+        let raw = reading.tokens.to_coefficients(&stats.token.denormalise(&sampled)?)?;
         let width = flow.config.token_width() * n;
         let raw = raw.flatten_all()?.to_vec1::<f32>()?;
         let mut prepared = Vec::with_capacity(ids.len());
@@ -514,7 +581,7 @@ pub fn train_init(
         let seeds = ids.iter().map(|&i| s.data.seeds[i as usize]).collect();
         let data =
             Bucket { robots: n, obstacles: m, seeds, robot_rows: robots, obstacle_rows: obstacles, tokens: sampled };
-        splits.push(Split { data, train, source: s.source });
+        splits.push(Split { data, train, source: s.source, pairs: None });
         buckets.push(InitBucket { engine, sf, prepared });
     }
     let mut vars = VarMap::new();
@@ -528,11 +595,12 @@ pub fn train_init(
         checkpoint_dir,
         |k, ids, _rng| {
             let b = &buckets[k];
-            let (robots, obstacles, samples) = splits[k].batch(ids)?;
-            let out = net.forward(&samples, &robots, &obstacles)?;
+            let rows = splits[k].batch(ids)?;
+            let out = net.forward(&rows.tokens, &rows.robots, &rows.obstacles)?;
             let chosen: Vec<&Prepared> = ids.iter().map(|&i| &b.prepared[i as usize]).collect();
             let batch = b.sf.batch(&b.engine, &chosen)?;
-            let delta = tokens_to_coefficients(&stats.token.scale(&out.delta)?, init.dim, init.n_xi)?;
+            let delta = reading.tokens.to_coefficients(&stats.token.scale(&out.delta)?)?;
+            let delta = tokens_to_coefficients(&delta, init.dim, init.n_xi)?;
             let xi0 = (&batch.sample + delta)?;
             let (xi_l, _, residuals) = b.sf.unroll(&xi0, &out.lambda, &batch, init.unroll)?;
             let fixed_point = residuals.sum(0)?.mean_all()?;

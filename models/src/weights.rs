@@ -29,12 +29,15 @@ pub struct Stats {
 pub struct Columns {
     /// Means.
     pub mean: Vec<f32>,
-    /// Standard deviations (at least [`Columns::FLOOR`]).
+    /// Standard deviations; a column that varied less than
+    /// [`Columns::FLOOR`] in training keeps its scale (std 1): the model never
+    /// saw it change, and dividing by a tiny spread would turn an unseen value
+    /// (a moving obstacle's velocity after static-only data) into a huge one.
     pub std: Vec<f32>,
 }
 
 impl Columns {
-    /// Smallest standard deviation used (constant columns).
+    /// Spread below which a column counts as constant in training.
     pub const FLOOR: f32 = 1e-3;
 
     /// The statistics of the rows of `x` (`[..., columns]`, f32).
@@ -47,7 +50,12 @@ impl Columns {
         let mean = flat.mean(0)?;
         let var = flat.broadcast_sub(&mean)?.sqr()?.mean(0)?;
         let mean: Vec<f32> = mean.to_vec1::<f64>()?.into_iter().map(|v| v as f32).collect();
-        let std = var.to_vec1::<f64>()?.into_iter().map(|v| (v.sqrt() as f32).max(Self::FLOOR)).collect();
+        let std = var
+            .to_vec1::<f64>()?
+            .into_iter()
+            .map(|v| v.sqrt() as f32)
+            .map(|s| if s < Self::FLOOR { 1.0 } else { s })
+            .collect();
         Ok(Self { mean, std })
     }
 
@@ -121,4 +129,21 @@ pub fn load<C: DeserializeOwned>(path: &Path, kind: &str) -> Result<Loaded<C>, M
     let stats = serde_json::from_str(&field("stats")?).map_err(|e| bad(format!("stats: {e}")))?;
     let tensors = candle_core::safetensors::load_buffer(&bytes, &Device::Cpu).map_err(|e| bad(e.to_string()))?;
     Ok(Loaded { config, stats, vars: VarBuilder::from_tensors(tensors, DType::F32, &Device::Cpu) })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_column_constant_in_training_keeps_its_scale() {
+        // Column 0 varies (std 1), column 1 is constant (a static obstacle's
+        // velocity): a later value of 0.3 in it stays 0.3, not 300.
+        let x = Tensor::new(&[[1f32, 0.0], [3.0, 0.0], [1.0, 0.0], [3.0, 0.0]], &Device::Cpu).unwrap();
+        let c = Columns::of(&x).unwrap();
+        assert_eq!((c.mean.clone(), c.std.clone()), (vec![2.0, 0.0], vec![1.0, 1.0]));
+        let later = Tensor::new(&[[2f32, 0.3]], &Device::Cpu).unwrap();
+        let got = c.normalise(&later).unwrap().to_vec2::<f32>().unwrap();
+        assert!((got[0][0] - 0.0).abs() < 1e-6 && (got[0][1] - 0.3).abs() < 1e-6, "{got:?}");
+    }
 }

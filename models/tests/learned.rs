@@ -31,7 +31,7 @@ fn tiny_data(dir: &Path) -> (DatagenConfig, Vec<(PathBuf, Dataset)>) {
         robots: vec![4],
         max_obstacles: 1,
         start_speed: 0.2,
-        per_bucket: 24,
+        per_bucket: 96,
         shard_size: 24,
         first_seed: 1_000_000_000,
         solver: DataSolver::Optimiser,
@@ -90,7 +90,7 @@ fn tiny_networks_learn_and_the_pipeline_plans_with_them() {
     let init_cfg =
         InitConfig { width: 16, heads: 2, hidden: 16, unroll: 4, sf_smoothing: 3.0, ..InitConfig::small(2, 11) };
     let init_path = dir.join("init.safetensors");
-    let samples = InitData { per_bucket: 20, flow_steps: 2 };
+    let samples = InitData { per_bucket: 60, flow_steps: 2 };
     let report = train_init(
         &data,
         &flow_path,

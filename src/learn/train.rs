@@ -4,10 +4,11 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::{Context, Result};
-use clap::{Args, Subcommand};
+use clap::{Args, Subcommand, ValueEnum};
 use flowopt_models::dataset::Dataset;
 use flowopt_models::flow::FlowConfig;
 use flowopt_models::init::InitConfig;
+use flowopt_models::tokens::TokenSpace;
 use flowopt_models::train::{FlowStart, InitData, TrainConfig, TrainReport, train_flow, train_init};
 use indicatif::{ProgressBar, ProgressStyle};
 
@@ -118,10 +119,36 @@ struct FlowArgs {
     /// MLP hidden width.
     #[arg(long, default_value_t = 256)]
     hidden: usize,
+    /// What the tokens hold: the plan's deviation from the reference at
+    /// interior positions, or at its interior Bernstein coefficients (the
+    /// weights before positions; docs/LEARNED.md).
+    #[arg(long, value_enum, default_value = "positions")]
+    tokens: TokensArg,
+    /// Do not read the robot-obstacle pair rows (as the weights before them).
+    #[arg(long)]
+    no_pairs: bool,
     /// Fine-tune these trained weights (their architecture and
     /// normalisation; the architecture flags above are then unused).
     #[arg(long, value_name = "WEIGHTS")]
     from: Option<PathBuf>,
+}
+
+/// What a new flow policy's tokens hold, on the command line.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+enum TokensArg {
+    /// Positions at interior instants.
+    Positions,
+    /// Interior Bernstein coefficients.
+    Coefficients,
+}
+
+impl From<TokensArg> for TokenSpace {
+    fn from(t: TokensArg) -> Self {
+        match t {
+            TokensArg::Positions => TokenSpace::Positions,
+            TokensArg::Coefficients => TokenSpace::Coefficients,
+        }
+    }
 }
 
 #[derive(Debug, Args)]
@@ -167,6 +194,8 @@ pub fn run(args: TrainArgs) -> Result<()> {
                     layers: a.layers,
                     heads: a.heads,
                     hidden: a.hidden,
+                    tokens: a.tokens.into(),
+                    pairs: !a.no_pairs,
                     ..FlowConfig::small(dim, flowopt_planner::problem::Team::DEFAULT_DEGREE + 1)
                 }),
             };

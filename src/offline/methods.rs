@@ -26,7 +26,10 @@ pub enum Method {
     /// The optimiser and the learned pipeline raced on the two cores: the
     /// first verified plan wins and the other is cancelled (the optimiser
     /// alone for teams over 32 robots, or where the learned planner has no
-    /// weights for the team).
+    /// weights for the team). The pipeline races without the initialiser,
+    /// as the daemon's shipped configurations plan: the SF does as well or
+    /// better started from the samples (docs/LEARNED.md, "Teaching the
+    /// policy obstacles").
     Auto,
     /// The from-scratch AM optimiser (smoothness cost, cold start).
     Baseline,
@@ -176,7 +179,7 @@ impl LearnedArgs {
             },
             top_k: self.top_k,
             temperature: self.temperature,
-            use_init: method != Method::FlowNoInit,
+            use_init: method == Method::Flowopt,
             init_without_obstacles: self.init_without_obstacles,
             // Racing the optimiser, the pipeline refines on one core.
             threads: if method == Method::Auto { 1 } else { self.threads.max(1) },
