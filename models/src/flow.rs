@@ -176,7 +176,9 @@ impl FlowModel {
 
     /// Encodes normalised robot rows (`[B, n, 3 dim]`), obstacle rows
     /// (`[B, m, 2 dim + 2]`; `m = 0` for none) and, for a policy with
-    /// [`FlowConfig::pairs`], the pair rows (`[B, n, m, pair_width]`).
+    /// [`FlowConfig::pairs`], the pair rows (`[B, n, m, pair_width]`, as
+    /// [`crate::pairs::pair_rows`] writes them: already in scaled units, not
+    /// normalised).
     pub fn encode(&self, robots: &Tensor, obstacles: &Tensor, pairs: Option<&Tensor>) -> Result<Encoded> {
         let mut embedding = self.robot_encoder.forward(robots)?;
         if obstacles.dim(1)? == 0 {
@@ -252,5 +254,18 @@ impl FlowModel {
         let xt = (x0 + target.broadcast_mul(&tb)?)?;
         let v = self.velocity(&xt, t, encoded)?;
         (v - target)?.sqr()?.mean_all()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn weights_from_before_the_token_and_pair_fields_read_coefficients_without_pairs() {
+        let old = r#"{"dim":3,"n_xi":11,"width":128,"heads":4,"layers":3,"hidden":256,"time_freqs":32}"#;
+        let config: FlowConfig = serde_json::from_str(old).expect("an old configuration parses");
+        assert_eq!((config.tokens, config.pairs), (TokenSpace::Coefficients, false));
+        assert_eq!(FlowConfig { tokens: TokenSpace::Positions, pairs: true, ..config }, FlowConfig::small(3, 11));
     }
 }

@@ -1,8 +1,9 @@
 //! The SF initialiser (METHOD.md section 4): one transformer block that
 //! reads a flow sample's tokens with the robots' start-goal rows and the
 //! obstacles, and outputs the safety filter's starting point
-//! `(xi_bar^0, lambda^0)`: a correction of the sample's interior
-//! coefficients and a multiplier for every coefficient. Its output heads
+//! `(xi_bar^0, lambda^0)`: a correction of the sample's token (in the
+//! policy's token space, [`crate::tokens`]) and a multiplier for every
+//! coefficient. Its output heads
 //! start at zero, so an untrained initialiser is exactly the plain start
 //! (`xi_bar^0 = xi`, `lambda^0 = 0`, the `flow-no-init` ablation) and
 //! training can only move away from it where that lowers the loss.
@@ -60,7 +61,8 @@ pub struct InitModel {
 #[derive(Debug, Clone)]
 pub struct InitOutput {
     /// Correction of the normalised sample tokens, `[B, n, W]` (times the
-    /// token std gives coefficients).
+    /// token std gives a change of tokens in the policy's token space,
+    /// [`crate::tokens::TokenMap::to_coefficients`] then coefficients).
     pub delta: Tensor,
     /// Multipliers, `[B, D, n, n_xi]`.
     pub lambda: Tensor,

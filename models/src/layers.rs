@@ -126,7 +126,7 @@ impl Attention {
             // the same keys: one small product per (context, token, head)
             // over the `g` candidates.
             let (bk, nk, m, _) = kv.dims4()?;
-            if nk != n || b % bk != 0 {
+            if nk != n || bk == 0 || b % bk != 0 {
                 candle_core::bail!("{nk} contexts of {bk} for {n} tokens of {b}");
             }
             let (g, batch) = (b / bk, bk * n * h);
@@ -246,18 +246,22 @@ mod tests {
         let (width, heads, b, n, m) = (8, 2, 6, 3, 4);
         let attention = Attention::new(vb, width, heads, false).unwrap();
         let x = Tensor::randn(0f32, 1.0, (b, n, width), &Device::Cpu).unwrap();
-        // Per token, shared by the candidates (`[1, n, m, D]`) and one per
-        // candidate (`[B, n, m, D]`): token i's output is the shared-context
-        // attention of every token to context i, at row i.
-        let context = Tensor::randn(0f32, 1.0, (1, n, m, width), &Device::Cpu).unwrap();
-        let each = context.repeat((b, 1, 1, 1)).unwrap();
-        for kv in [attention.keys_values(&context).unwrap(), attention.keys_values(&each).unwrap()] {
-            let got = attention.attend(&x, &kv).unwrap();
-            for i in 0..n {
-                let own = context.narrow(1, i, 1).unwrap().squeeze(1).unwrap();
-                let want = attention.forward(&x, &own.repeat((b, 1, 1)).unwrap()).unwrap();
-                let diff = close(&got.narrow(1, i, 1).unwrap(), &want.narrow(1, i, 1).unwrap());
-                assert!(diff < 1e-5, "token {i}: {diff}");
+        // Per token, shared by all candidates (`[1, n, m, D]`), by each
+        // group of 3 (two problems, `[2, n, m, D]`) and one per candidate
+        // (`[B, n, m, D]`): token i of candidate c attends as every token
+        // does to c's context i alone.
+        for contexts in [1, 2, b] {
+            let context = Tensor::randn(0f32, 1.0, (contexts, n, m, width), &Device::Cpu).unwrap();
+            let got = attention.attend(&x, &attention.keys_values(&context).unwrap()).unwrap();
+            for c in 0..b {
+                let own = context.narrow(0, c / (b / contexts), 1).unwrap();
+                let row = x.narrow(0, c, 1).unwrap();
+                for i in 0..n {
+                    let shared = own.narrow(1, i, 1).unwrap().squeeze(1).unwrap();
+                    let want = attention.forward(&row, &shared).unwrap().narrow(1, i, 1).unwrap();
+                    let diff = close(&got.narrow(0, c, 1).unwrap().narrow(1, i, 1).unwrap(), &want);
+                    assert!(diff < 1e-5, "{contexts} contexts, candidate {c}, token {i}: {diff}");
+                }
             }
         }
     }

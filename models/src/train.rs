@@ -495,7 +495,7 @@ pub(crate) fn write_card(
         inputs,
         metrics: report.clone(),
         instances: (splits.iter().map(|s| s.train).sum(), splits.iter().map(|s| s.data.len() - s.train).sum()),
-        command: std::env::args().collect(),
+        command: std::env::args_os().map(|a| a.to_string_lossy().into_owned()).collect(),
     };
     write_json(&out.with_extension("json"), &card)
 }

@@ -16,7 +16,8 @@ use crate::ModelError;
 /// training dataset.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Stats {
-    /// Plan tokens (the coded deviation from the reference).
+    /// Plan tokens (the coded deviation from the reference, in the
+    /// policy's token space, [`crate::tokens::TokenSpace`]).
     pub token: Columns,
     /// Robot condition rows.
     pub robot: Columns,

@@ -67,9 +67,9 @@ pub struct LearnedArgs {
     /// models/weights/flow3d.safetensors in 3D].
     #[arg(long)]
     pub flow_weights: Option<PathBuf>,
-    /// SF initialiser weights [default: the shipped ones for the team's
-    /// dimension, models/weights/init.safetensors in 2D and
-    /// models/weights/init3d.safetensors in 3D].
+    /// SF initialiser weights, read by `--method flowopt` only [default: the
+    /// shipped ones for the team's dimension, models/weights/init.safetensors
+    /// in 2D and models/weights/init3d.safetensors in 3D].
     #[arg(long)]
     pub init_weights: Option<PathBuf>,
     /// Candidates sampled per problem without obstacles.
@@ -114,7 +114,8 @@ pub struct LearnedArgs {
     #[arg(long, default_value_t = PipelineSettings::default().obstacle_threads)]
     pub obstacle_threads: usize,
     /// Start the safety filter from the initialiser on problems without
-    /// obstacles too (by default it is used where there are obstacles).
+    /// obstacles too (`--method flowopt`; by default it is used where there
+    /// are obstacles).
     #[arg(long)]
     pub init_without_obstacles: bool,
     /// Refine every one of the top-k and return the smoothest verified plan
@@ -384,21 +385,26 @@ impl Planner {
     }
 
     /// The learned planner for teams of `dim`, its weights loaded on first
-    /// use.
-    fn load_learned(&mut self, dim: Dim) -> Result<&LearnedPlanner> {
+    /// use; with the initialiser (where its file exists) when `init`, the
+    /// one method that uses it ([`Method::Flowopt`]): the others neither
+    /// load nor check it, so a policy trained later plans under `auto`
+    /// beside the shipped initialiser of another policy.
+    fn load_learned(&mut self, dim: Dim, init: bool) -> Result<&LearnedPlanner> {
         let args = self.learned_args.as_ref().context("no learned-planner weights were given")?;
-        let index = match self.learned.iter().position(|(d, _)| *d == dim) {
+        let cached = self.learned.iter().position(|(d, l)| *d == dim && (!init || l.model().has_init()));
+        let index = match cached {
             Some(i) => i,
             None => {
-                let (flow, init) = args.weights(dim);
-                let init = init.exists().then_some(init.as_path());
-                let learned = LearnedPlanner::load(&flow, init, args.sf_smoothing).with_context(|| {
+                let (flow, init_path) = args.weights(dim);
+                let init_path = (init && init_path.exists()).then_some(init_path.as_path());
+                let learned = LearnedPlanner::load(&flow, init_path, args.sf_smoothing).with_context(|| {
                     format!(
                         "loading the learned planner from {} (relative to the working directory: run from the \
                              repository root or give --flow-weights and --init-weights)",
                         flow.display()
                     )
                 })?;
+                self.learned.retain(|(d, _)| *d != dim);
                 self.learned.push((dim, learned));
                 self.learned.len() - 1
             }
@@ -409,7 +415,7 @@ impl Planner {
     /// Why the learned methods cannot plan for `team` (no weights, or
     /// weights for another dimension or basis), or `None` if they can.
     pub fn learned_unavailable(&mut self, team: &Team) -> Option<String> {
-        match self.load_learned(team.dim) {
+        match self.load_learned(team.dim, false) {
             Err(e) => Some(format!("{e:#}")),
             Ok(learned) => learned.model().check(team).err().map(|e| e.to_string()),
         }
@@ -444,7 +450,7 @@ impl Planner {
         let obstacles = first.obstacles.len();
         anyhow::ensure!(hidden <= obstacles, "cannot hide {hidden} of {obstacles} obstacles");
         let set = self.engine_set(&first.team, obstacles, Use::Filter)?;
-        self.load_learned(first.team.dim)?;
+        self.load_learned(first.team.dim, method == Method::Flowopt)?;
         let (Some((_, learned)), Some(args)) =
             (self.learned.iter().find(|(d, _)| *d == first.team.dim), self.learned_args.as_ref())
         else {
