@@ -57,6 +57,13 @@ impl Method {
             Method::FlowNoInit => "flow-no-init",
         }
     }
+
+    /// Whether it starts the safety filter from the SF initialiser (and so
+    /// loads one): the paper's pipeline alone; `auto` races without it,
+    /// as the daemon's shipped configurations plan.
+    pub fn uses_initialiser(self) -> bool {
+        self == Method::Flowopt
+    }
 }
 
 /// The learned planner's weights and pipeline settings on the command line.
@@ -180,7 +187,7 @@ impl LearnedArgs {
             },
             top_k: self.top_k,
             temperature: self.temperature,
-            use_init: method == Method::Flowopt,
+            use_init: method.uses_initialiser(),
             init_without_obstacles: self.init_without_obstacles,
             // Racing the optimiser, the pipeline refines on one core.
             threads: if method == Method::Auto { 1 } else { self.threads.max(1) },
@@ -385,10 +392,10 @@ impl Planner {
     }
 
     /// The learned planner for teams of `dim`, its weights loaded on first
-    /// use; with the initialiser (where its file exists) when `init`, the
-    /// one method that uses it ([`Method::Flowopt`]): the others neither
-    /// load nor check it, so a policy trained later plans under `auto`
-    /// beside the shipped initialiser of another policy.
+    /// use; with the initialiser (where its file exists) when `init`, for
+    /// the methods that use it ([`Method::uses_initialiser`]): the others
+    /// neither load nor check it, so a policy trained later plans under
+    /// `auto` beside the shipped initialiser of another policy.
     fn load_learned(&mut self, dim: Dim, init: bool) -> Result<&LearnedPlanner> {
         let args = self.learned_args.as_ref().context("no learned-planner weights were given")?;
         let cached = self.learned.iter().position(|(d, l)| *d == dim && (!init || l.model().has_init()));
@@ -450,14 +457,14 @@ impl Planner {
         let obstacles = first.obstacles.len();
         anyhow::ensure!(hidden <= obstacles, "cannot hide {hidden} of {obstacles} obstacles");
         let set = self.engine_set(&first.team, obstacles, Use::Filter)?;
-        self.load_learned(first.team.dim, method == Method::Flowopt)?;
+        self.load_learned(first.team.dim, method.uses_initialiser())?;
         let (Some((_, learned)), Some(args)) =
             (self.learned.iter().find(|(d, _)| *d == first.team.dim), self.learned_args.as_ref())
         else {
             anyhow::bail!("the learned planner is not loaded");
         };
         let model = learned.model();
-        if method == Method::Flowopt && !model.has_init() {
+        if method.uses_initialiser() && !model.has_init() {
             anyhow::bail!("{} is missing: flowopt needs the SF initialiser", args.weights(first.team.dim).1.display());
         }
         let seen: Vec<Problem> = problems
