@@ -7,6 +7,7 @@ mod live;
 mod offline;
 
 use std::path::PathBuf;
+use std::process::ExitCode;
 
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
@@ -49,8 +50,20 @@ enum Command {
     Eval(eval::EvalArgs),
 }
 
-fn main() -> Result<()> {
-    let cli = Cli::parse();
+/// Runs the command; an error is printed as one line (its causes joined),
+/// whatever `RUST_BACKTRACE` says: refusals such as a second daemon for a
+/// served team are expected outcomes, not crashes.
+fn main() -> ExitCode {
+    match run(Cli::parse()) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("flowopt: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn run(cli: Cli) -> Result<()> {
     // Planning runs candle on one thread: its products are small, and the
     // safety filter has the cores (docs/LEARNED.md). Training keeps
     // candle's default (40 flow steps on data/n8: 21.0 s, 21.3 s at one).

@@ -6,7 +6,7 @@ mod common;
 
 use std::process::Stdio;
 
-use common::{ROBOTS, Setup, problem};
+use common::{ROBOTS, Setup, Watcher, problem, wait_for};
 use flowopt_client::{PlanStatus, Reason, StateSnapshot};
 
 #[test]
@@ -37,24 +37,29 @@ fn each_malformed_snapshot_is_rejected_and_the_next_valid_one_served() {
     let mut c = setup.controller("e2e-malformed");
     let p = problem(4);
     type Edit = Box<dyn Fn(&mut StateSnapshot)>;
-    let cases: Vec<(&str, Edit, Reason)> = vec![
-        ("NaN start", Box::new(|s| s.robot[1].position[0] = f64::NAN), Reason::NonFinite),
-        ("n out of range", Box::new(|s| s.robots = flowopt_client::MAX_ROBOTS as u32 + 1), Reason::RobotCount),
-        ("n not the team's", Box::new(|s| s.robots = 3), Reason::RobotCount),
-        ("overlapping starts", Box::new(|s| s.robot[1].position = s.robot[0].position), Reason::StartsOverlap),
-        ("overlapping goals", Box::new(|s| s.robot[2].goal = s.robot[3].goal), Reason::GoalsOverlap),
-        ("goal out of bounds", Box::new(|s| s.robot[0].goal = [1.5, 0.0, 0.0]), Reason::GoalOutsideWorkspace),
-        ("too many obstacles", Box::new(|s| s.obstacles = 2), Reason::ObstacleCount),
-        ("wrong dimension", Box::new(|s| s.dim = 3), Reason::Dimension),
-        ("wrong version", Box::new(|s| s.version = 0), Reason::Version),
+    use PlanStatus::{Held, NoPlan};
+    let cases: Vec<(&str, Edit, PlanStatus, Reason)> = vec![
+        ("NaN start", Box::new(|s| s.robot[1].position[0] = f64::NAN), Held, Reason::NonFinite),
+        ("n out of range", Box::new(|s| s.robots = flowopt_client::MAX_ROBOTS as u32 + 1), Held, Reason::RobotCount),
+        ("n not the team's", Box::new(|s| s.robots = 3), Held, Reason::RobotCount),
+        // Measured in contact: the robots are not on the held plan, and no
+        // stopping plan starts from overlapping robots.
+        ("overlapping starts", Box::new(|s| s.robot[1].position = s.robot[0].position), NoPlan, Reason::StartsOverlap),
+        ("overlapping goals", Box::new(|s| s.robot[2].goal = s.robot[3].goal), Held, Reason::GoalsOverlap),
+        ("goal out of bounds", Box::new(|s| s.robot[0].goal = [1.5, 0.0, 0.0]), Held, Reason::GoalOutsideWorkspace),
+        ("too many obstacles", Box::new(|s| s.obstacles = 2), Held, Reason::ObstacleCount),
+        ("wrong dimension", Box::new(|s| s.dim = 3), Held, Reason::Dimension),
+        ("wrong version", Box::new(|s| s.version = 0), Held, Reason::Version),
+        ("junk after the team's name", Box::new(|s| s.team[2..6].copy_from_slice(b"junk")), Held, Reason::Team),
     ];
     let first = c.request(&p, |_| {});
     assert_eq!(first.status(), Ok(PlanStatus::Ok));
     drop(first);
-    for (what, edit, reason) in cases {
+    for (what, edit, status, reason) in cases {
         let rejected = c.request(&p, edit);
-        // The held plan is re-issued, and the message says why.
-        assert_eq!((rejected.status(), rejected.reason()), (Ok(PlanStatus::Held), Ok(reason)), "{what}");
+        // The held plan is re-issued (where the robots are still on it),
+        // and the message says why.
+        assert_eq!((rejected.status(), rejected.reason()), (Ok(status), Ok(reason)), "{what}");
         drop(rejected);
         let served = c.request(&p, |_| {});
         assert_eq!(served.status(), Ok(PlanStatus::Ok), "the valid snapshot after {what}");
@@ -71,21 +76,21 @@ fn stale_state_is_reported() {
     assert_eq!(plan.status(), Ok(PlanStatus::Ok));
     let (sequence, origin) = (plan.answers_sequence, plan.plan_origin_ns);
     drop(plan);
-    // No more snapshots: after stale_after_ms the daemon says so, holding
-    // the last plan.
-    let stale = c.wait_for(PlanStatus::Held, Reason::StaleState);
-    assert_eq!((stale.answers_sequence, stale.plan_origin_ns), (sequence, origin));
-    assert!(stale.sample(0.0).is_ok());
+    // No more snapshots: after stale_after_ms the daemon says so, and
+    // re-issues nothing: without a measurement it cannot check a plan.
+    let stale = c.wait_for(PlanStatus::NoPlan, Reason::StaleState);
+    assert_eq!(stale.answers_sequence, sequence);
+    assert_ne!(stale.plan_origin_ns, origin);
 }
 
 #[test]
 fn a_killed_and_restarted_client_is_served_again() {
     let setup = Setup::new("client");
     let _daemon = setup.daemon();
-    let mut watcher = setup.controller("e2e-watcher");
+    let mut watcher = Watcher::new(&setup, "e2e-watcher");
     let mut first = setup.sim(600.0).stdout(Stdio::null()).spawn().unwrap();
     // The first simulator is being served ...
-    watcher.wait_for(PlanStatus::Ok, Reason::None);
+    wait_for(&mut watcher.plans, PlanStatus::Ok, Reason::None);
     // ... and dies without cleaning up.
     first.kill().unwrap();
     first.wait().unwrap();

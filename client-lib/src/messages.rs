@@ -153,7 +153,7 @@ impl PlanStatus {
 }
 
 /// Why a message is not a new plan: the snapshot was rejected (codes 1-13
-/// and 16-18), or the plan could not be made or verified (14, 15, 19-22).
+/// and 16-18), or the plan could not be made or verified (14, 15, 19-23).
 /// On the wire it is a `u32` ([`JointTrajectory::reason`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Reason {
@@ -207,13 +207,16 @@ pub enum Reason {
     NotFollowing = 21,
     /// The verified plan exceeds the robots' speed or acceleration limits.
     Limits = 22,
+    /// The held plan no longer clears the newest snapshot's obstacles (one
+    /// appeared, moved or changed course onto it).
+    WorldChanged = 23,
 }
 
 impl Reason {
     /// The reason with wire value `value`.
     pub fn from_wire(value: u32) -> Result<Self, MessageError> {
         use Reason::*;
-        const ALL: [Reason; 23] = [
+        const ALL: [Reason; 24] = [
             None,
             Version,
             Team,
@@ -237,11 +240,16 @@ impl Reason {
             NotVerified,
             NotFollowing,
             Limits,
+            WorldChanged,
         ];
         ALL.get(value as usize).copied().ok_or(MessageError::Field("reason"))
     }
 
-    /// Whether this reason rejects the snapshot (which then changed nothing).
+    /// Whether this reason rejects the snapshot: its task was not planned.
+    /// Rejected by a header, clock, sequence or value check (1-7, 16-18) it
+    /// changed nothing; rejected for its task (8-13: overlaps, the
+    /// workspace, obstacles) its robots and obstacles are still the newest
+    /// world every followable answer is checked against.
     pub fn is_rejection(self) -> bool {
         matches!(self as u32, 1..=13 | 16..=18)
     }
@@ -354,10 +362,15 @@ fn write_name(out: &mut [u8; TEAM_NAME_LEN], name: &str) -> Result<(), MessageEr
     Ok(())
 }
 
-/// Reads a NUL-padded name.
+/// Reads a NUL-padded name: UTF-8 up to the first NUL and only NULs after
+/// it (`default\0junk` is not the name `default`).
 fn read_name(bytes: &[u8; TEAM_NAME_LEN]) -> Result<&str, MessageError> {
+    let bad = || MessageError::TeamName(String::from_utf8_lossy(bytes).into());
     let end = bytes.iter().position(|&b| b == 0).unwrap_or(TEAM_NAME_LEN);
-    std::str::from_utf8(&bytes[..end]).map_err(|_| MessageError::TeamName(String::from_utf8_lossy(bytes).into()))
+    if bytes[end..].iter().any(|&b| b != 0) {
+        return Err(bad());
+    }
+    std::str::from_utf8(&bytes[..end]).map_err(|_| bad())
 }
 
 impl StateSnapshot {
@@ -644,9 +657,11 @@ mod tests {
             assert_eq!(Reason::from_wire(value).map(|r| r as u32), Ok(value));
         }
         assert_eq!(PlanStatus::from_wire(4), Err(MessageError::Field("status")));
-        assert_eq!(Reason::from_wire(23), Err(MessageError::Field("reason")));
+        assert_eq!(Reason::from_wire(23), Ok(Reason::WorldChanged));
+        assert_eq!(Reason::from_wire(24), Err(MessageError::Field("reason")));
         assert!(Reason::NonFinite.is_rejection() && Reason::Clock.is_rejection() && Reason::Implausible.is_rejection());
         assert!(!Reason::DeadlineMissed.is_rejection() && !Reason::StaleState.is_rejection());
+        assert!(!Reason::WorldChanged.is_rejection());
         assert!(PlanStatus::Held.followable() && PlanStatus::Stopping.followable() && !PlanStatus::NoPlan.followable());
     }
 
@@ -720,6 +735,12 @@ mod tests {
         assert!(s.set_team("").is_err());
         assert!(s.set_team(&"x".repeat(TEAM_NAME_LEN + 1)).is_err());
         s.team = [0xff; TEAM_NAME_LEN];
+        assert!(s.team_name().is_err());
+        // Bytes after the name's NUL make it another name.
+        s.set_team("default").unwrap();
+        s.team[8..12].copy_from_slice(b"junk");
+        assert!(s.team_name().is_err());
+        s.team[TEAM_NAME_LEN - 1] = 0;
         assert!(s.team_name().is_err());
     }
 }

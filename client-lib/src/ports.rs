@@ -23,6 +23,7 @@ use iceoryx2::prelude::*;
 use iceoryx2::sample::Sample;
 use iceoryx2::service::builder::event::EventOpenOrCreateError;
 use iceoryx2::service::builder::publish_subscribe::PublishSubscribeOpenOrCreateError;
+use iceoryx2::service::port_factory::publish_subscribe::PortFactory as Topic;
 use thiserror::Error;
 
 use crate::clock::monotonic_ns;
@@ -31,9 +32,20 @@ use crate::messages::{
     JointTrajectory, MAX_COEFFS, MAX_ROBOTS, MessageError, RobotState, StateSnapshot, WIRE_VERSION, check_team_name,
 };
 
-/// Publishers a service admits (two, so a restarted publisher can join
-/// before its dead predecessor is cleaned up).
-const MAX_PUBLISHERS: usize = 2;
+/// Publishers a plan service admits (two, so a restarted daemon can join
+/// before its dead predecessor is cleaned up; the team lock keeps a second
+/// live one out).
+const PLAN_PUBLISHERS: usize = 2;
+/// Publishers a state service admits: one state source per team. A second
+/// live controller cannot publish; a crashed one's successor takes its
+/// place once the dead node is cleaned up (by the successor, or by the
+/// daemon within [`DEAD_NODE_SWEEP`]).
+const STATE_PUBLISHERS: usize = 1;
+/// Notifiers an event service admits.
+const MAX_NOTIFIERS: usize = 8;
+/// How often the daemon removes the resources of dead nodes, so that a
+/// crashed controller's successor can publish.
+pub const DEAD_NODE_SWEEP: Duration = Duration::from_millis(250);
 /// Subscribers a service admits.
 const MAX_SUBSCRIBERS: usize = 16;
 /// Nodes that may open a service.
@@ -72,10 +84,21 @@ pub enum PortError {
         #[source]
         source: EventOpenOrCreateError,
     },
-    /// A publisher could not be created (for example: the service has its
-    /// maximum of publishers).
+    /// A publisher could not be created.
     #[error("PortError::Publisher: cannot create a publisher")]
     Publisher(#[source] PublisherCreateError),
+    /// Another live controller publishes the team's state: a team has one
+    /// state source.
+    #[error(
+        "PortError::StateTaken: team {team:?} already has a live controller publishing on {service}; \
+         a team has one state source (stop the other controller first)"
+    )]
+    StateTaken {
+        /// The team.
+        team: String,
+        /// Its state service.
+        service: String,
+    },
     /// A subscriber could not be created.
     #[error("PortError::Subscriber: cannot create a subscriber")]
     Subscriber(#[source] SubscriberCreateError),
@@ -103,6 +126,13 @@ pub enum PortError {
     /// The nodes of the domain could not be listed.
     #[error("PortError::ListNodes: cannot list the iceoryx2 nodes")]
     ListNodes(#[source] NodeListFailure),
+}
+
+impl PortError {
+    /// Whether this is a service's publishers all taken.
+    fn publishers_exhausted(&self) -> bool {
+        matches!(self, PortError::Publisher(PublisherCreateError::ExceedsMaxSupportedPublishers))
+    }
 }
 
 /// The names of one team's four services.
@@ -148,6 +178,8 @@ impl TeamChannel {
 /// Implementors guarantee that every byte pattern is a valid value and that
 /// `HEADER + MAX_ROBOTS * ENTRY` is the type's size.
 unsafe trait Wire: Debug + ZeroCopySend + 'static {
+    /// Publishers a service of this message admits.
+    const PUBLISHERS: usize;
     /// Bytes before the per-robot entries.
     const HEADER: usize;
     /// Bytes of one per-robot entry.
@@ -158,6 +190,7 @@ unsafe trait Wire: Debug + ZeroCopySend + 'static {
 
 // SAFETY: integers, floats and arrays of them; the robots come last.
 unsafe impl Wire for StateSnapshot {
+    const PUBLISHERS: usize = STATE_PUBLISHERS;
     const HEADER: usize = std::mem::offset_of!(StateSnapshot, robot);
     const ENTRY: usize = size_of::<RobotState>();
     fn entries(&self) -> usize {
@@ -168,6 +201,7 @@ unsafe impl Wire for StateSnapshot {
 // SAFETY: integers, floats and arrays of them (the status and reason are
 // `u32`s on the wire); the coefficients come last.
 unsafe impl Wire for JointTrajectory {
+    const PUBLISHERS: usize = PLAN_PUBLISHERS;
     const HEADER: usize = std::mem::offset_of!(JointTrajectory, coeffs);
     const ENTRY: usize = size_of::<[[f64; MAX_COEFFS]; 3]>();
     fn entries(&self) -> usize {
@@ -207,13 +241,26 @@ impl Endpoint {
         &self.node
     }
 
-    /// For a controller: publishes snapshots of `channel`'s team.
+    /// For a controller: publishes snapshots of `channel`'s team, as its
+    /// one state source. While another live controller publishes them this
+    /// fails with [`PortError::StateTaken`]; a crashed one is cleaned up
+    /// first ([`cleanup_dead_nodes`]), so its successor takes over at once.
     pub fn state_publisher(&self, channel: &TeamChannel) -> Result<StatePublisher, PortError> {
-        Ok(StatePublisher {
-            outlet: self.outlet(&channel.state, &channel.state_ready)?,
-            team: channel.team.clone(),
-            next_sequence: 1,
-        })
+        let outlet = match self.outlet(&channel.state, &channel.state_ready) {
+            Err(e) if e.publishers_exhausted() => {
+                cleanup_dead_nodes()?;
+                self.outlet(&channel.state, &channel.state_ready)
+            }
+            other => other,
+        };
+        let outlet = outlet.map_err(|e| {
+            if e.publishers_exhausted() {
+                PortError::StateTaken { team: channel.team.clone(), service: channel.state.to_string() }
+            } else {
+                e
+            }
+        })?;
+        Ok(StatePublisher { outlet, team: channel.team.clone(), next_sequence: 1 })
     }
 
     /// For a controller: receives the newest plan of `channel`'s team and
@@ -226,7 +273,10 @@ impl Endpoint {
 
     /// For the daemon: receives the newest snapshot of `channel`'s team.
     pub fn state_subscriber(&self, channel: &TeamChannel) -> Result<StateSubscriber, PortError> {
-        Ok(StateSubscriber { inlet: self.inlet(&channel.state, &channel.state_ready)? })
+        Ok(StateSubscriber {
+            inlet: self.inlet(&channel.state, &channel.state_ready)?,
+            service: self.topic::<StateSnapshot>(&channel.state)?,
+        })
     }
 
     /// For the daemon: publishes plans for `channel`'s team.
@@ -234,10 +284,7 @@ impl Endpoint {
         Ok(PlanPublisher { outlet: self.outlet(&channel.plan, &channel.plan_ready)?, team: channel.team.clone() })
     }
 
-    fn topic<T: Wire>(
-        &self,
-        name: &ServiceName,
-    ) -> Result<iceoryx2::service::port_factory::publish_subscribe::PortFactory<ipc::Service, T, ()>, PortError> {
+    fn topic<T: Wire>(&self, name: &ServiceName) -> Result<Topic<ipc::Service, T, ()>, PortError> {
         self.node
             .service_builder(name)
             .publish_subscribe::<T>()
@@ -245,7 +292,7 @@ impl Endpoint {
             .history_size(1)
             .enable_safe_overflow(true)
             .subscriber_max_borrowed_samples(2)
-            .max_publishers(MAX_PUBLISHERS)
+            .max_publishers(T::PUBLISHERS)
             .max_subscribers(MAX_SUBSCRIBERS)
             .max_nodes(MAX_NODES)
             .open_or_create()
@@ -259,7 +306,7 @@ impl Endpoint {
         self.node
             .service_builder(name)
             .event()
-            .max_notifiers(MAX_PUBLISHERS * 4)
+            .max_notifiers(MAX_NOTIFIERS)
             .max_listeners(MAX_SUBSCRIBERS)
             .max_nodes(MAX_NODES)
             .open_or_create()
@@ -448,6 +495,7 @@ impl PlanSubscriber {
 #[derive(Debug)]
 pub struct StateSubscriber {
     inlet: Inlet<StateSnapshot>,
+    service: Topic<ipc::Service, StateSnapshot, ()>,
 }
 
 impl StateSubscriber {
@@ -465,6 +513,17 @@ impl StateSubscriber {
     /// The listener woken on every snapshot, to attach to a WaitSet.
     pub fn listener(&self) -> &Listener<ipc::Service> {
         &self.inlet.listener
+    }
+
+    /// Whether the publisher `id` (a sample's origin) is still registered
+    /// on the service (a dead process's stays until it is cleaned up).
+    pub fn has_publisher(&self, id: u128) -> bool {
+        let mut found = false;
+        self.service.dynamic_config().list_publishers(|p| {
+            found = p.publisher_id.value() == id;
+            if found { CallbackProgression::Stop } else { CallbackProgression::Continue }
+        });
+        found
     }
 }
 

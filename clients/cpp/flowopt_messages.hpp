@@ -68,9 +68,12 @@ enum class Reason : std::uint32_t {
     NotVerified = 20,
     NotFollowing = 21,
     Limits = 22,
+    WorldChanged = 23,
 };
 
-/// Whether `reason` rejects the answered snapshot (which changed nothing).
+/// Whether `reason` rejects the answered snapshot: its task was not planned
+/// (for 1-7 and 16-18 it changed nothing; for 8-13 its robots and obstacles
+/// are still the world the daemon checks every followable answer against).
 constexpr bool is_rejection(std::uint32_t reason) {
     return (reason >= 1 && reason <= 13) || (reason >= 16 && reason <= 18);
 }

@@ -2,13 +2,16 @@
 //! commented default.
 
 use std::collections::HashSet;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use flowopt_client::messages::check_team_name;
 use flowopt_client::{MAX_COEFFS, MAX_OBSTACLES, MAX_ROBOTS};
 use flowopt_models::pipeline::PipelineSettings;
+use flowopt_models::shipped::WeightsRef;
 use flowopt_planner::problem::{Dim, ProblemError, Team};
 use flowopt_planner::scenario::{FileBox, FileShape, default_degree, default_horizon, default_samples, file_team};
+
+use crate::realtime::RealtimeConfig;
 
 use serde::Deserialize;
 use thiserror::Error;
@@ -38,6 +41,9 @@ pub enum ConfigError {
     /// Two teams share a name.
     #[error("team {0:?} is configured twice")]
     DuplicateTeam(String),
+    /// The `[realtime]` section is invalid.
+    #[error("{0}")]
+    Realtime(String),
     /// A team that cannot be planned for.
     #[error("team {name:?}: {message}")]
     BadTeam {
@@ -55,6 +61,9 @@ pub struct DaemonConfig {
     /// Service naming.
     #[serde(default)]
     pub ipc: IpcConfig,
+    /// Scheduling and memory locking.
+    #[serde(default)]
+    pub realtime: RealtimeConfig,
     /// The teams served, one `[[team]]` table each.
     #[serde(rename = "team")]
     pub teams: Vec<TeamConfig>,
@@ -132,6 +141,10 @@ pub struct TeamConfig {
     /// `max_speed` is rejected as implausible.
     #[serde(default = "default_implausible_factor")]
     pub implausible_factor: f64,
+    /// A snapshot whose obstacle moves faster than this (m/s) is rejected
+    /// as implausible.
+    #[serde(default = "default_max_obstacle_speed")]
+    pub max_obstacle_speed: f64,
     /// Robots within this distance (m) of the held plan are following it:
     /// it may be re-issued while no new plan verifies.
     #[serde(default = "default_follow_tolerance_m")]
@@ -150,17 +163,20 @@ pub struct TeamConfig {
     pub learned: Option<LearnedConfig>,
 }
 
-/// The learned planner of a team (`[team.learned]`). Paths are relative to
-/// the configuration file's directory ([`DaemonConfig::load`] resolves them).
+/// The learned planner of a team (`[team.learned]`). Weight paths are
+/// relative to the configuration file's directory ([`DaemonConfig::load`]
+/// resolves them); `"shipped"` names the shipped weights of the team's
+/// dimension, built into the binary.
 #[derive(Debug, Clone, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct LearnedConfig {
-    /// Flow policy weights.
-    pub flow: PathBuf,
+    /// Flow policy weights (default: the shipped ones).
+    #[serde(default)]
+    pub flow: WeightsRef,
     /// SF initialiser weights (optional: without them the SF starts from
     /// the samples).
     #[serde(default)]
-    pub init: Option<PathBuf>,
+    pub init: Option<WeightsRef>,
     /// Candidates sampled per cold plan without obstacles.
     #[serde(default = "default_candidates")]
     pub candidates: usize,
@@ -226,6 +242,9 @@ fn default_max_acceleration() -> f64 {
 fn default_implausible_factor() -> f64 {
     2.0
 }
+fn default_max_obstacle_speed() -> f64 {
+    3.0
+}
 fn default_follow_tolerance_m() -> f64 {
     0.005
 }
@@ -258,6 +277,7 @@ impl TeamConfig {
             ("clock_skew_ms", self.clock_skew_ms),
             ("max_speed", self.max_speed),
             ("max_acceleration", self.max_acceleration),
+            ("max_obstacle_speed", self.max_obstacle_speed),
             ("follow_tolerance_m", self.follow_tolerance_m),
             ("warm_tolerance_m", self.warm_tolerance_m),
             ("cold_budget_ms", self.cold_budget_ms),
@@ -289,9 +309,13 @@ impl DaemonConfig {
             toml::from_str(&text).map_err(|e| ConfigError::Parse { path: shown, message: e.to_string() })?;
         config.check()?;
         let dir = path.parent().unwrap_or(Path::new(""));
+        let relative = |w: &WeightsRef| match w {
+            WeightsRef::File(p) => WeightsRef::File(dir.join(p)),
+            shipped => shipped.clone(),
+        };
         for learned in config.teams.iter_mut().filter_map(|t| t.learned.as_mut()) {
-            learned.flow = dir.join(&learned.flow);
-            learned.init = learned.init.as_ref().map(|p| dir.join(p));
+            learned.flow = relative(&learned.flow);
+            learned.init = learned.init.as_ref().map(relative);
         }
         Ok(config)
     }
@@ -301,6 +325,7 @@ impl DaemonConfig {
         if self.teams.is_empty() {
             return Err(ConfigError::NoTeams);
         }
+        self.realtime.check().map_err(ConfigError::Realtime)?;
         let mut names = HashSet::new();
         for t in &self.teams {
             t.team()?;
@@ -330,12 +355,11 @@ mod tests {
         DaemonConfig::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("../config").join(name)).unwrap()
     }
 
-    /// The learned planner's weights of `team`, relative to its file, are
-    /// found whatever the working directory.
+    /// The learned planner's weights of `team` are the shipped ones, built in.
     fn assert_weights_found(team: &TeamConfig) {
         let learned = team.learned.as_ref().expect("the team races the learned planner");
-        assert!(learned.flow.is_file(), "{}", learned.flow.display());
-        assert!(learned.init.as_ref().is_none_or(|p| p.is_file()), "an initialiser, where given, is found");
+        assert_eq!(learned.flow, WeightsRef::Shipped);
+        assert!(learned.init.is_none(), "no initialiser");
     }
 
     #[test]
@@ -372,6 +396,7 @@ mod tests {
         assert_eq!((t.deadline_ms, t.replan_hz, t.stale_after_ms), (20.0, 0.0, 500.0));
         assert_eq!((t.max_speed, t.max_acceleration, t.implausible_factor), (1.5, 3.0, 2.0));
         assert_eq!((t.clock_skew_ms, t.follow_tolerance_m, t.warm_tolerance_m), (50.0, 0.005, 0.05));
+        assert_eq!(t.max_obstacle_speed, 3.0);
     }
 
     #[test]

@@ -1,5 +1,13 @@
 //! A snapshot checked against its team and turned into a planning problem,
 //! or a rejection carrying the reason code the plan message reports.
+//!
+//! The checks run in a fixed order, the first failure giving the reason:
+//! the header ([`check_header`]: version, team, dimension, counts), then
+//! the clock and the sequence ([`crate::admission`]), then the values
+//! ([`measured`]: finite, positive sizes, plausible speeds of robots and
+//! obstacles), then the task (workspace, overlaps, obstacles). A snapshot
+//! rejected before the task is not a measurement and changes nothing; one
+//! whose task alone is rejected still reports the world as it is.
 
 use flowopt_client::{MAX_ROBOTS, Reason, StateSnapshot, WIRE_VERSION};
 use flowopt_planner::problem::{Field, Obstacle, Problem, ProblemError, Spheroid, StartState, Team};
@@ -26,16 +34,11 @@ impl Rejection {
     }
 }
 
-/// Checks `snapshot` against `team` (named `name`, admitting up to
-/// `max_obstacles` and robot speeds up to `max_plausible_speed`) and builds
-/// the problem, with zero start accelerations.
-pub fn problem_from(
-    snapshot: &StateSnapshot,
-    team: &Team,
-    name: &str,
-    max_obstacles: usize,
-    max_plausible_speed: f64,
-) -> Result<Problem, Rejection> {
+/// The checks of a snapshot's header, in order: [`Reason::Version`],
+/// [`Reason::Team`] (the name, NUL-padded, nothing after its NUL),
+/// [`Reason::Dimension`], [`Reason::RobotCount`], [`Reason::ObstacleCount`].
+/// They come first: a snapshot that fails one is not read any further.
+pub fn check_header(snapshot: &StateSnapshot, team: &Team, name: &str, max_obstacles: usize) -> Result<(), Rejection> {
     if snapshot.version != WIRE_VERSION {
         return Err(Rejection::new(Reason::Version));
     }
@@ -48,13 +51,44 @@ pub fn problem_from(
     if snapshot.robots as usize != team.robots {
         return Err(Rejection::new(Reason::RobotCount));
     }
-    let obstacles = snapshot.obstacles as usize;
-    if obstacles > max_obstacles {
+    if snapshot.obstacles as usize > max_obstacles {
         return Err(Rejection::new(Reason::ObstacleCount));
     }
+    Ok(())
+}
+
+/// The speeds above which a measured robot or obstacle is implausible.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Plausible {
+    /// Robots (m/s).
+    pub robot_speed: f64,
+    /// Obstacles (m/s).
+    pub obstacle_speed: f64,
+}
+
+/// A snapshot whose measurement was accepted: the world it reports, and
+/// whether its task (the goals, from where the robots are) can be planned.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Measured {
+    /// The problem it describes (start accelerations zero).
+    pub problem: Problem,
+    /// `Err` when the task cannot be planned: a start or goal outside the
+    /// workspace, overlapping starts or goals, a start or goal in an
+    /// obstacle. The robots and obstacles are still what was measured.
+    pub task: Result<(), Rejection>,
+}
+
+/// Reads a snapshot whose header passed [`check_header`]: the values
+/// ([`Reason::NonFinite`], [`Reason::NonPositiveSize`]), then their
+/// plausibility ([`Reason::Implausible`]: a robot or obstacle faster than
+/// `plausible`), then the task. A rejection here means the snapshot is not
+/// a measurement; a task that cannot be planned is reported in
+/// [`Measured::task`].
+pub fn measured(snapshot: &StateSnapshot, team: &Team, plausible: Plausible) -> Result<Measured, Rejection> {
     let v = |a: &[f64; 3]| Vector3::from(*a);
     let robots = &snapshot.robot[..team.robots];
-    let problem = Problem {
+    let obstacles = (snapshot.obstacles as usize).min(snapshot.obstacle.len());
+    let mut problem = Problem {
         team: team.clone(),
         starts: robots
             .iter()
@@ -70,7 +104,6 @@ pub fn problem_from(
             })
             .collect(),
     };
-    let mut problem = problem;
     if team.dim.axes() == 2 {
         // The third entries are ignored in 2D; keep them out of the plan.
         for s in &mut problem.starts {
@@ -84,11 +117,33 @@ pub fn problem_from(
             o.shape.half_height = o.shape.radius;
         }
     }
-    problem.validate().map_err(|e| rejection_of(&e))?;
-    if let Some(i) = problem.starts.iter().position(|s| s.velocity.norm() > max_plausible_speed) {
+    let task = match problem.validate() {
+        Ok(()) => Ok(()),
+        Err(e) if is_task(&e) => Err(rejection_of(&e)),
+        Err(e) => return Err(rejection_of(&e)),
+    };
+    if let Some(i) = problem.starts.iter().position(|s| s.velocity.norm() > plausible.robot_speed) {
         return Err(Rejection::at(Reason::Implausible, i));
     }
-    Ok(problem)
+    if let Some(m) = problem.obstacles.iter().position(|o| o.velocity.norm() > plausible.obstacle_speed) {
+        return Err(Rejection::at(Reason::Implausible, MAX_ROBOTS + m));
+    }
+    Ok(Measured { problem, task })
+}
+
+/// Whether a validation error is about the task (where the robots are and
+/// where they are to go) rather than about the values themselves.
+fn is_task(error: &ProblemError) -> bool {
+    use ProblemError as E;
+    matches!(
+        error,
+        E::StartsOverlap { .. }
+            | E::GoalsOverlap { .. }
+            | E::StartInObstacle { .. }
+            | E::GoalInObstacle { .. }
+            | E::StartOutsideWorkspace(_)
+            | E::GoalOutsideWorkspace(_)
+    )
 }
 
 /// The reason code of a validation error.
@@ -123,6 +178,8 @@ mod tests {
     use flowopt_planner::problem::Dim;
     use flowopt_planner::scenario::RandomScenario;
 
+    const PLAUSIBLE: Plausible = Plausible { robot_speed: 3.0, obstacle_speed: 3.0 };
+
     /// A valid snapshot of a random 4-robot instance, with one obstacle.
     fn valid() -> (Team, StateSnapshot) {
         let team = Team::default_for(Dim::Two, 4);
@@ -133,8 +190,12 @@ mod tests {
         (team, s)
     }
 
+    /// The header checks, then the measurement: the rejection of the
+    /// snapshot, or of its task.
     fn check(s: &StateSnapshot, team: &Team) -> Result<Problem, Rejection> {
-        problem_from(s, team, "t", 2, 3.0)
+        check_header(s, team, "t", 2)?;
+        let m = measured(s, team, PLAUSIBLE)?;
+        m.task.map(|()| m.problem)
     }
 
     #[test]
@@ -152,6 +213,7 @@ mod tests {
         let cases: Vec<(Edit, Reason, u32)> = vec![
             (Box::new(|s| s.version = 99), Reason::Version, u32::MAX),
             (Box::new(|s| s.set_team("other").unwrap()), Reason::Team, u32::MAX),
+            (Box::new(|s| s.team[2..6].copy_from_slice(b"junk")), Reason::Team, u32::MAX),
             (Box::new(|s| s.dim = 3), Reason::Dimension, u32::MAX),
             (Box::new(|s| s.robots = MAX_ROBOTS as u32 + 1), Reason::RobotCount, u32::MAX),
             (Box::new(|s| s.obstacles = 3), Reason::ObstacleCount, u32::MAX),
@@ -161,6 +223,8 @@ mod tests {
             (Box::new(|s| s.obstacle[0].radius = -0.1), Reason::NonPositiveSize, MAX_ROBOTS as u32),
             (Box::new(|s| s.robot[1].velocity = [1e6, 0.0, 0.0]), Reason::Implausible, 1),
             (Box::new(|s| s.robot[3].velocity = [0.0, 3.5, 9.0]), Reason::Implausible, 3),
+            (Box::new(|s| s.obstacle[0].velocity = [1e300, 0.0, 0.0]), Reason::Implausible, MAX_ROBOTS as u32),
+            (Box::new(|s| s.obstacle[0].velocity = [0.0, 3.1, 0.0]), Reason::Implausible, MAX_ROBOTS as u32),
             (Box::new(|s| s.robot[1].position = s.robot[0].position), Reason::StartsOverlap, 0),
             (Box::new(|s| s.robot[1].goal = s.robot[0].goal), Reason::GoalsOverlap, 0),
             (Box::new(|s| s.robot[3].goal = [0.0, 5.0, 0.0]), Reason::GoalOutsideWorkspace, 3),
@@ -172,6 +236,25 @@ mod tests {
             break_it(&mut s);
             assert_eq!(check(&s, &team).unwrap_err(), Rejection { reason, index }, "{reason:?}");
         }
+    }
+
+    #[test]
+    fn the_header_is_checked_first_and_an_all_zero_snapshot_is_the_wrong_version() {
+        let team = Team::default_for(Dim::Two, 4);
+        let zero = StateSnapshot { version: 0, ..StateSnapshot::new() };
+        assert_eq!(check(&zero, &team).unwrap_err().reason, Reason::Version);
+    }
+
+    #[test]
+    fn a_task_that_cannot_be_planned_is_still_a_measurement() {
+        let (team, mut s) = valid();
+        s.obstacle[0].position = s.robot[2].goal;
+        let m = measured(&s, &team, PLAUSIBLE).unwrap();
+        assert_eq!(m.task, Err(Rejection::at(Reason::GoalInObstacle, 2)));
+        assert_eq!(m.problem.obstacles[0].position, Vector3::from(s.robot[2].goal));
+        // A bad value is not.
+        s.robot[0].position[0] = f64::NAN;
+        assert_eq!(measured(&s, &team, PLAUSIBLE).unwrap_err().reason, Reason::NonFinite);
     }
 
     #[test]

@@ -10,6 +10,8 @@
 //! - [`planning`]: one team's planner and the followability contract, off
 //!   the wire: held plans, warm starts only from a plan the robots are on,
 //!   cold plans, stopping plans, limits;
+//! - [`realtime`]: worker priority, memory locking and CPU pinning, each
+//!   reported when refused;
 //! - [`serve()`]: the service: preloading, a WaitSet on every team's
 //!   snapshot events, one worker thread per team (the only code that reads
 //!   snapshots and writes replies), graceful shutdown.
@@ -20,6 +22,7 @@ pub mod config;
 pub mod convert;
 pub mod lock;
 pub mod planning;
+pub mod realtime;
 mod serve;
 mod worker;
 

@@ -1,30 +1,44 @@
-//! One team's planner and the followability contract: every accepted
-//! snapshot gets an answer that says which trajectory the controllers are
-//! to follow from now on, and that trajectory is always one this planner
-//! verified from a state consistent with the measured one, or there is
-//! none. It knows nothing of the wire: the daemon's worker converts
-//! snapshots into problems and writes the replies.
+//! One team's planner and the followability contract: every snapshot gets
+//! an answer that says which trajectory the controllers are to follow from
+//! now on, and that trajectory is always one this planner verified from a
+//! state consistent with the measured one and against the world the newest
+//! accepted snapshot reports, or there is none. It knows nothing of the
+//! wire: the daemon's worker converts snapshots into problems and writes
+//! the replies.
 //!
+//! - **The world.** The newest accepted measurement: the robots and the
+//!   obstacles (static, or moving at their reported velocities) of the
+//!   newest snapshot that passed the value checks, even when its task (its
+//!   goals) could not be planned. Every followable answer is checked
+//!   against it before it is published ([`TeamPlanner::followable`]): the
+//!   measured robots within `follow_tolerance_m` of the plan, and the
+//!   plan's rest (at least the stopping horizon) clear of the obstacles
+//!   with the plan's own buffer ([`Recheck`]).
 //! - **Held plan.** The last verified plan published, with its own time
-//!   origin. A late or failed computation never replaces it: it is
-//!   re-issued ([`Follow::Held`]) while the robots are within
-//!   `follow_tolerance_m` of it.
-//! - **Warm start**, only from a plan the robots are on: when the goals and
-//!   obstacles are unchanged and the measured state is within
-//!   `warm_tolerance_m` of the held plan at the snapshot's time, the held
-//!   plan shifted in time ([`JointPlan::shifted`]) is the safety filter's
-//!   sample; a verified result is the new plan.
+//!   origin: what the controllers follow. A late or failed computation never
+//!   replaces it; it is re-issued ([`Follow::Held`]) while it passes the
+//!   check above. One that no longer does is replaced at once by a stopping
+//!   plan verified against that world, or by nothing.
+//! - **Warm start**, only from a plan the robots are on: when the goals are
+//!   unchanged and the measured state is within `warm_tolerance_m` of the
+//!   held plan at the snapshot's time, the held plan shifted in time
+//!   ([`JointPlan::shifted`]) is the safety filter's sample against the
+//!   newest obstacles; a verified result is the new plan.
 //! - **Cold plan** otherwise, or when the warm start does not verify in
 //!   time: the cold planner's methods race on their own threads
 //!   ([`crate::cold`]) within the same deadline. One that misses it keeps
-//!   running; its plan is adopted as soon as it verifies if the newest
-//!   state is still at its start, else it becomes the sample of the next
-//!   warm start.
-//! - **Fallback** when nothing verified by the deadline: the held plan if
-//!   the robots follow it; else a verified stopping plan (every robot
-//!   brought to rest along its motion, [`flowopt_planner::stopping`];
-//!   verified at the true sizes, without the tracking buffer); else
-//!   nothing ([`Follow::Nothing`]).
+//!   running; its plan is adopted as soon as it verifies if it passes the
+//!   check against the newest world (the robots still at its start), else
+//!   it becomes the sample of the next warm start.
+//! - **Fallback** when nothing verified by the deadline: the held plan if it
+//!   passes the check; else a verified stopping plan (every robot brought to
+//!   rest along its motion, [`flowopt_planner::stopping`]; verified at the
+//!   true sizes, without the tracking buffer), computed before the cold
+//!   plan so that the answer is on time; else nothing ([`Follow::Nothing`]).
+//! - **No measurement.** A snapshot rejected before its task (bad header,
+//!   clock, sequence or values) changes nothing: the held plan is re-issued
+//!   while the newest accepted snapshot is at most `stale_after_ms` old
+//!   ([`TeamPlanner::reissue`]), then nothing is.
 //! - **Limits.** A plan exceeding the team's speed or acceleration limits
 //!   is stretched in time when the robots start at rest (the paper's
 //!   post-hoc time scaling) and refused otherwise ([`Why::Limits`]).
@@ -32,7 +46,8 @@
 use std::time::{Duration, Instant};
 
 use flowopt_models::pipeline::{LearnedPlanner, PipelineSettings};
-use flowopt_planner::am::{AmSettings, Budget, EngineError, EngineSet, Objective, Stop};
+use flowopt_models::shipped::Weights;
+use flowopt_planner::am::{AmSettings, Budget, EngineError, EngineSet, Objective, Recheck, Stop};
 use flowopt_planner::metrics::DENSE_FACTOR;
 use flowopt_planner::plan::JointPlan;
 use flowopt_planner::problem::{Problem, Team};
@@ -85,7 +100,9 @@ pub fn tracking_buffer(team: &Team, follow_tolerance: f64) -> f64 {
 /// may be stretched in time without changing its start.
 const AT_REST: f64 = 0.02;
 
-/// Time kept before the deadline to publish a fallback answer.
+/// Time kept before the deadline to publish an answer: at least this, and
+/// a twentieth of the deadline (the planners check their budget every few
+/// iterations).
 const PUBLISH_MARGIN: Duration = Duration::from_millis(1);
 
 /// Goals closer than this (m) count as unchanged.
@@ -117,6 +134,8 @@ pub enum Why {
     NotFollowing,
     /// The verified plan exceeds the speed or acceleration limits.
     Limits,
+    /// The held plan no longer clears the newest snapshot's obstacles.
+    WorldChanged,
 }
 
 /// What kind of plan is held.
@@ -167,7 +186,6 @@ pub struct Held {
     /// Its largest acceleration (m/s^2).
     pub max_acceleration: f64,
     goals: Vec<Vector3<f64>>,
-    obstacles: usize,
 }
 
 impl Held {
@@ -183,11 +201,9 @@ fn seconds(from_ns: u64, to_ns: u64) -> f64 {
     (to_ns as i128 - from_ns as i128) as f64 * 1e-9
 }
 
-/// Whether `a` and `b` have the same goals and obstacle count.
-fn same_task(goals: &[Vector3<f64>], obstacles: usize, problem: &Problem) -> bool {
-    obstacles == problem.obstacles.len()
-        && goals.len() == problem.goals.len()
-        && goals.iter().zip(&problem.goals).all(|(a, b)| (a - b).norm() <= SAME_GOAL)
+/// Whether `goals` are `problem`'s goals.
+fn same_goals(goals: &[Vector3<f64>], problem: &Problem) -> bool {
+    goals.len() == problem.goals.len() && goals.iter().zip(&problem.goals).all(|(a, b)| (a - b).norm() <= SAME_GOAL)
 }
 
 /// What one snapshot (or a late cold plan) produced.
@@ -224,9 +240,11 @@ struct Candidate {
     primal: f64,
 }
 
-/// The newest accepted state.
+/// The newest accepted measurement: every followable answer is checked
+/// against it.
 #[derive(Debug, Clone)]
-struct Newest {
+struct World {
+    /// The robots, their goals (which may not be plannable) and the obstacles.
     problem: Problem,
     origin_ns: u64,
     sequence: u64,
@@ -242,6 +260,17 @@ struct Pending {
     outstanding: usize,
 }
 
+/// What is published if nothing new verifies in time.
+#[derive(Debug)]
+enum Fallback {
+    /// The held plan, which passed the check against the newest world.
+    Held,
+    /// A stopping plan verified against it.
+    Stop(Box<Candidate>),
+    /// Nothing.
+    Nothing,
+}
+
 /// The team's limits and tolerances.
 #[derive(Debug, Clone, Copy)]
 struct Rules {
@@ -250,6 +279,12 @@ struct Rules {
     max_acceleration: f64,
     follow_tolerance: f64,
     warm_tolerance: f64,
+    /// How old the newest accepted snapshot may be for a plan to be
+    /// re-issued without a newer one (ns).
+    stale_after_ns: u64,
+    /// The stopping plans' horizon (s): every followable plan is checked at
+    /// least this far ahead.
+    stop_horizon: f64,
 }
 
 /// A team's preloaded engines and its planning state.
@@ -263,9 +298,13 @@ pub struct TeamPlanner {
     stops: EngineSet,
     stop_reference: SmoothReference,
     fitter: Fitter,
+    /// The obstacle checks of held plans against the newest world: plans
+    /// to the goals with the tracking buffer, stopping plans without.
+    recheck_goals: Recheck,
+    recheck_stops: Recheck,
     cold: ColdPlanner,
     held: Option<Held>,
-    newest: Option<Newest>,
+    newest: Option<World>,
     pending: Option<Pending>,
     /// A verified cold plan whose start the robots had left: the next
     /// warm start's sample.
@@ -304,7 +343,9 @@ impl TeamPlanner {
         let fitter = Fitter::new(&basis).map_err(EngineError::Kkt)?;
         let mut methods = Vec::new();
         if let Some(l) = &config.learned {
-            let planner = LearnedPlanner::load(&l.flow, l.init.as_deref(), l.sf_smoothing)?;
+            let flow = l.flow.resolve(team.dim, Weights::shipped_flow);
+            let init = l.init.as_ref().map(|i| i.resolve(team.dim, Weights::shipped_init));
+            let planner = LearnedPlanner::load(&flow, init.as_ref(), l.sf_smoothing)?;
             let filters = planner.filters(&team, filter_settings, max)?;
             let settings = PipelineSettings {
                 candidates: l.candidates,
@@ -325,6 +366,8 @@ impl TeamPlanner {
         methods.push(Method::Optimiser(optimisers));
         let cold = ColdPlanner::start(&config.name, methods, Duration::from_secs_f64(config.cold_budget_ms * 1e-3));
         Ok(Self {
+            recheck_goals: Recheck::new(&team, &filter_settings),
+            recheck_stops: Recheck::new(&stop_team, &stop_settings),
             team,
             rules: Rules {
                 deadline: Duration::from_secs_f64(config.deadline_ms * 1e-3),
@@ -332,6 +375,8 @@ impl TeamPlanner {
                 max_acceleration: config.max_acceleration,
                 follow_tolerance: config.follow_tolerance_m,
                 warm_tolerance: config.warm_tolerance_m,
+                stale_after_ns: (config.stale_after_ms * 1e6) as u64,
+                stop_horizon,
             },
             filters,
             stops,
@@ -370,33 +415,60 @@ impl TeamPlanner {
         self.cold.results().clone()
     }
 
+    /// Whether `held` may be followed in `world`: the measured robots
+    /// within `follow_tolerance_m` of it ([`Why::NotFollowing`]) and its
+    /// rest, and at least the stopping horizon, clear of the world's
+    /// obstacles as they move ([`Why::WorldChanged`]).
+    fn followable(&self, held: &Held, world: &World) -> Result<(), Why> {
+        self.may_follow(&held.plan, held.origin_ns, held.kind, world)
+    }
+
+    /// [`Self::followable`] for `plan` of `kind` with its origin at `origin_ns`.
+    fn may_follow(&self, plan: &JointPlan, origin_ns: u64, kind: Kind, world: &World) -> Result<(), Why> {
+        let elapsed = seconds(origin_ns, world.origin_ns);
+        if plan.deviation(elapsed, &world.problem.starts) > self.rules.follow_tolerance {
+            return Err(Why::NotFollowing);
+        }
+        let recheck = match kind {
+            Kind::Goals => &self.recheck_goals,
+            Kind::Stopping => &self.recheck_stops,
+        };
+        let elapsed = elapsed.max(0.0);
+        let window = (plan.horizon - elapsed).max(self.rules.stop_horizon);
+        if !recheck.clear(plan, elapsed, window, &world.problem.obstacles) {
+            return Err(Why::WorldChanged);
+        }
+        Ok(())
+    }
+
+    /// The instant planning for an answer due at `deadline` must end.
+    fn until(&self, deadline: Instant) -> Instant {
+        let margin = PUBLISH_MARGIN.max(self.rules.deadline / 20);
+        deadline.checked_sub(margin).unwrap_or(deadline)
+    }
+
     /// Answers an accepted snapshot: `problem` (validated, of this team),
     /// measured at `origin_ns` in snapshot `sequence`, by `deadline`.
     pub fn answer(&mut self, problem: Problem, origin_ns: u64, sequence: u64, deadline: Instant) -> Answer {
-        self.newest = Some(Newest { problem: problem.clone(), origin_ns, sequence });
+        let world = World { problem, origin_ns, sequence };
+        self.newest = Some(world.clone());
+        let until = self.until(deadline);
         let mut answer = Answer::new(Follow::Nothing, Why::DeadlineMissed);
-        let deviation = self.held.as_ref().map(|h| h.deviation(&problem, origin_ns));
+        let checked = self.held.as_ref().map(|h| self.followable(h, &world));
+        let deviation = self.held.as_ref().map(|h| h.deviation(&world.problem, origin_ns));
         let mut why = Why::DeadlineMissed;
 
-        // Warm start from the held plan, if the robots are on it.
+        // Warm start from the held plan, if the robots are on it (against
+        // the obstacles as they are now).
         let warm_from = self.held.as_ref().filter(|h| {
             h.kind == Kind::Goals
-                && same_task(&h.goals, h.obstacles, &problem)
+                && same_goals(&h.goals, &world.problem)
                 && deviation.is_some_and(|d| d <= self.rules.warm_tolerance)
         });
         if let Some(h) = warm_from {
             let (plan, origin) = (h.plan.clone(), h.origin_ns);
-            let warm_deadline = deadline.min(Instant::now() + self.rules.deadline / 2);
-            let found = self.refine(
-                &plan,
-                seconds(origin, origin_ns),
-                &problem,
-                origin_ns,
-                sequence,
-                warm_deadline,
-                &mut answer,
-            );
-            match found {
+            let warm_until = until.min(Instant::now() + self.rules.deadline / 2);
+            match self.refine(&plan, seconds(origin, origin_ns), &world, warm_until, &mut answer) {
                 Ok(Some(candidate)) => {
                     answer.warm = true;
                     return self.adopt(candidate, answer);
@@ -406,61 +478,99 @@ impl TeamPlanner {
             }
         }
         // A verified cold plan the robots had left: repaired from here.
-        if let Some(fresh) =
-            self.fresh.take().filter(|f| same_task(&f.problem.goals, f.problem.obstacles.len(), &problem))
-        {
+        if let Some(fresh) = self.fresh.take().filter(|f| same_goals(&f.problem.goals, &world.problem)) {
             let dt = seconds(fresh.origin_ns, origin_ns);
-            if let Ok(Some(candidate)) =
-                self.refine(&fresh.plan, dt, &problem, origin_ns, sequence, deadline, &mut answer)
-            {
+            if let Ok(Some(candidate)) = self.refine(&fresh.plan, dt, &world, until, &mut answer) {
                 return self.adopt(candidate, answer);
             }
         }
-        // Cold: keep a request for these goals running, or start one.
-        let running = self.pending.as_ref().is_some_and(|p| same_task(&p.goals, p.obstacles, &problem));
+        // The fallback, made first so that the answer is on time: the held
+        // plan if it may be followed, else a stopping plan (a few iterations
+        // at most; the cold threads have the cores meanwhile).
+        let fallback = match checked {
+            Some(Ok(())) => Fallback::Held,
+            _ => self.stopping(&world, until, &mut answer).map_or(Fallback::Nothing, |c| Fallback::Stop(Box::new(c))),
+        };
+        // Cold: keep a request for these goals and obstacles running, or start one.
+        let running = self
+            .pending
+            .as_ref()
+            .is_some_and(|p| same_goals(&p.goals, &world.problem) && p.obstacles == world.problem.obstacles.len());
         if !running {
-            let id = self.cold.submit(&problem, origin_ns, sequence);
+            let id = self.cold.submit(&world.problem, origin_ns, sequence);
             self.pending = Some(Pending {
                 id,
-                goals: problem.goals.clone(),
-                obstacles: problem.obstacles.len(),
+                goals: world.problem.goals.clone(),
+                obstacles: world.problem.obstacles.len(),
                 outstanding: self.cold.methods(),
             });
         }
-        // Wait for it, leaving time to publish a fallback within the deadline.
-        let wait_until = deadline.checked_sub(PUBLISH_MARGIN.min(self.rules.deadline / 10)).unwrap_or(deadline);
-        let results = self.cold.results().clone();
+        // Wait for the cold plan until the answer is due.
         while self.pending.is_some() {
-            // Past the deadline only a result already there is taken (a
-            // blocking receive backs off by yielding, which can hand the
-            // core to the cold threads for milliseconds).
-            let received = if Instant::now() >= wait_until {
-                results.try_recv().ok()
-            } else {
-                results.recv_deadline(wait_until).ok()
-            };
-            let Some(result) = received else { break };
-            if let Some(adopted) = self.take_cold(result, &mut answer, deadline) {
+            let Some(result) = self.cold.wait_until(until) else { break };
+            if let Some(adopted) = self.take_cold(result, &mut answer, until) {
                 return adopted;
             }
         }
         if self.pending.is_none() && why == Why::DeadlineMissed {
             why = Why::NotVerified;
         }
-        self.fallback(&problem, origin_ns, sequence, deviation, why, answer, deadline)
+        let why = match checked {
+            Some(Err(w)) => w,
+            _ => why,
+        };
+        self.fall_back(fallback, why, answer)
+    }
+
+    /// Answers a snapshot whose measurement was accepted but whose task
+    /// (its goals, from where the robots are) cannot be planned: its world
+    /// becomes the newest, and the answer is the held plan if it may still
+    /// be followed in it, else a stopping plan verified against it, else
+    /// nothing. The caller reports the task's rejection as the reason.
+    pub fn observe(&mut self, problem: Problem, origin_ns: u64, sequence: u64, deadline: Instant) -> Answer {
+        let world = World { problem, origin_ns, sequence };
+        self.newest = Some(world.clone());
+        let mut answer = Answer::new(Follow::Nothing, Why::None);
+        let fallback = match self.held.as_ref().map(|h| self.followable(h, &world)) {
+            Some(Ok(())) => Fallback::Held,
+            checked => {
+                if let Some(Err(w)) = checked {
+                    answer.why = w;
+                }
+                let until = self.until(deadline);
+                self.stopping(&world, until, &mut answer).map_or(Fallback::Nothing, |c| Fallback::Stop(Box::new(c)))
+            }
+        };
+        let why = answer.why;
+        self.fall_back(fallback, why, answer)
+    }
+
+    /// What to follow after a snapshot that is not a measurement (rejected
+    /// before its task), or after silence, at `now_ns`: the held plan while
+    /// the newest accepted snapshot is at most `stale_after_ms` old (it was
+    /// checked against that world when it was last published), else nothing.
+    pub fn reissue(&mut self, now_ns: u64) -> Follow {
+        let fresh =
+            self.newest.as_ref().is_some_and(|w| now_ns.saturating_sub(w.origin_ns) <= self.rules.stale_after_ns);
+        if self.held.is_some() && fresh {
+            Follow::Held
+        } else {
+            self.held = None;
+            Follow::Nothing
+        }
     }
 
     /// A cold result that arrived outside any snapshot's deadline: adopted
-    /// if it verified and the newest state is at its start (or it can be
+    /// if it verified and may be followed in the newest world (or can be
     /// repaired from there at once), returned as the answer to publish.
     pub(crate) fn on_cold(&mut self, result: ColdResult) -> Option<Answer> {
         let mut answer = Answer::new(Follow::Nothing, Why::None);
-        let deadline = Instant::now() + self.rules.deadline;
-        self.take_cold(result, &mut answer, deadline)
+        let until = Instant::now() + self.rules.deadline / 2;
+        self.take_cold(result, &mut answer, until)
     }
 
     /// Takes one cold result: the answer if its plan was adopted.
-    fn take_cold(&mut self, result: ColdResult, answer: &mut Answer, deadline: Instant) -> Option<Answer> {
+    fn take_cold(&mut self, result: ColdResult, answer: &mut Answer, until: Instant) -> Option<Answer> {
         debug!(method = result.method, verified = result.outcome.plan.is_some(), "cold result");
         let pending = self.pending.as_mut().filter(|p| p.id == result.request.id)?;
         pending.outstanding = pending.outstanding.saturating_sub(1);
@@ -488,15 +598,15 @@ impl TeamPlanner {
             sequence: request.sequence,
             primal: result.outcome.primal,
         };
-        let newest = self.newest.clone()?;
-        if !same_task(&candidate.problem.goals, candidate.problem.obstacles.len(), &newest.problem) {
+        let world = self.newest.clone()?;
+        if !same_goals(&candidate.problem.goals, &world.problem) {
             return None;
         }
-        let dt = seconds(candidate.origin_ns, newest.origin_ns);
-        if candidate.plan.deviation(dt.max(0.0), &newest.problem.starts) <= self.rules.follow_tolerance {
+        if self.may_follow(&candidate.plan, candidate.origin_ns, Kind::Goals, &world).is_ok() {
             return Some(self.adopt(candidate, answer.clone()));
         }
-        match self.refine(&candidate.plan, dt, &newest.problem, newest.origin_ns, newest.sequence, deadline, answer) {
+        let dt = seconds(candidate.origin_ns, world.origin_ns);
+        match self.refine(&candidate.plan, dt, &world, until, answer) {
             Ok(Some(repaired)) => Some(self.adopt(repaired, answer.clone())),
             _ => {
                 self.fresh = Some(candidate);
@@ -505,22 +615,19 @@ impl TeamPlanner {
         }
     }
 
-    /// The safety filter on `sample` shifted by `dt` for `problem`: a
+    /// The safety filter on `sample` shifted by `dt` for `world`: a
     /// verified candidate within the limits, `None` if it did not verify,
     /// or why it cannot be published.
-    #[allow(clippy::too_many_arguments)]
     fn refine(
         &self,
         sample: &JointPlan,
         dt: f64,
-        problem: &Problem,
-        origin_ns: u64,
-        sequence: u64,
-        deadline: Instant,
+        world: &World,
+        until: Instant,
         answer: &mut Answer,
     ) -> Result<Option<Candidate>, Why> {
         let t = Instant::now();
-        let mut start = problem.clone();
+        let mut start = world.problem.clone();
         let xi = {
             let _span = info_span!("warm_start").entered();
             sample.shifted(dt.max(0.0), &mut start, &self.fitter)
@@ -528,9 +635,9 @@ impl TeamPlanner {
         answer.stages.warm_start += t.elapsed();
         let t = Instant::now();
         let _span = info_span!("filter").entered();
-        let outcome = self.filters.get(problem.obstacles.len()).and_then(|engine| {
+        let outcome = self.filters.get(start.obstacles.len()).and_then(|engine| {
             let prepared = engine.prepare(&start, Some(&xi)).ok()?;
-            Some((engine, engine.run_within(&prepared, engine.cold_start(&prepared), &Budget::until(deadline))))
+            Some((engine, engine.run_within(&prepared, engine.cold_start(&prepared), &Budget::until(until))))
         });
         answer.stages.filter += t.elapsed();
         let Some((engine, outcome)) = outcome else { return Ok(None) };
@@ -540,6 +647,7 @@ impl TeamPlanner {
             return Ok(None);
         }
         let plan = self.within_limits(engine.plan(outcome.state.xi), &start)?;
+        let (origin_ns, sequence) = (world.origin_ns, world.sequence);
         Ok(Some(Candidate { plan, problem: start, origin_ns, sequence, primal: outcome.primal }))
     }
 
@@ -573,69 +681,43 @@ impl TeamPlanner {
         answer
     }
 
-    /// Nothing new verified in time: the held plan if the robots follow it,
-    /// else a verified stopping plan, else nothing.
-    #[allow(clippy::too_many_arguments)]
-    fn fallback(
-        &mut self,
-        problem: &Problem,
-        origin_ns: u64,
-        sequence: u64,
-        deviation: Option<f64>,
-        why: Why,
-        mut answer: Answer,
-        deadline: Instant,
-    ) -> Answer {
-        if deviation.is_some_and(|d| d <= self.rules.follow_tolerance) {
-            answer.follow = Follow::Held;
-            answer.why = why;
-            return answer;
-        }
-        let why = if self.held.is_some() { Why::NotFollowing } else { why };
+    /// Publishes `fallback` for `why`: the held plan, the stopping plan
+    /// (now the held one), or nothing (nothing held).
+    fn fall_back(&mut self, fallback: Fallback, why: Why, mut answer: Answer) -> Answer {
         answer.why = why;
-        match self.stopping(
-            problem,
-            origin_ns,
-            sequence,
-            deadline.max(Instant::now() + self.rules.deadline / 2),
-            &mut answer,
-        ) {
-            Some(candidate) => {
-                self.held = Some(held(candidate, Kind::Stopping, self.team.samples));
-                answer.follow = Follow::Stopping;
+        answer.follow = match fallback {
+            Fallback::Held => Follow::Held,
+            Fallback::Stop(candidate) => {
+                self.held = Some(held(*candidate, Kind::Stopping, self.team.samples));
+                Follow::Stopping
             }
-            None => {
+            Fallback::Nothing => {
                 self.held = None;
-                answer.follow = Follow::Nothing;
+                Follow::Nothing
             }
-        }
+        };
         answer
     }
 
-    /// A verified stopping plan from `problem`'s state, within the limits.
-    fn stopping(
-        &self,
-        problem: &Problem,
-        origin_ns: u64,
-        sequence: u64,
-        deadline: Instant,
-        answer: &mut Answer,
-    ) -> Option<Candidate> {
+    /// A verified stopping plan from `world`'s state against its
+    /// obstacles, within the limits, made by `until`.
+    fn stopping(&self, world: &World, until: Instant, answer: &mut Answer) -> Option<Candidate> {
         let _span = info_span!("stopping").entered();
         let t = Instant::now();
         let inset = self.team.robot.radius * AmSettings::safety_filter().margin;
-        let stop = stopping_problem(problem, self.stops.team().horizon, inset);
+        let stop = stopping_problem(&world.problem, self.stops.team().horizon, inset);
         stop.validate().ok()?;
         let engine = self.stops.get(stop.obstacles.len())?;
         let sample = self.stop_reference.coefficients(&stop);
         let prepared = engine.prepare(&stop, Some(&sample)).ok()?;
-        let outcome = engine.run_within(&prepared, engine.cold_start(&prepared), &Budget::until(deadline));
+        let outcome = engine.run_within(&prepared, engine.cold_start(&prepared), &Budget::until(until));
         answer.stages.filter += t.elapsed();
         answer.iterations += outcome.iterations;
         if outcome.stop != Stop::Verified {
             return None;
         }
         let plan = self.within_limits(engine.plan(outcome.state.xi), &stop).ok()?;
+        let (origin_ns, sequence) = (world.origin_ns, world.sequence);
         Some(Candidate { plan, problem: stop, origin_ns, sequence, primal: outcome.primal })
     }
 }
@@ -653,7 +735,6 @@ fn held(candidate: Candidate, kind: Kind, samples: usize) -> Held {
         kind,
         primal: candidate.primal,
         goals: candidate.problem.goals,
-        obstacles: candidate.problem.obstacles.len(),
         plan: candidate.plan,
     }
 }
@@ -673,7 +754,7 @@ fn add_stages(into: &mut Stages, more: &Stages) {
 mod tests {
     use super::*;
     use flowopt_planner::metrics::Metrics;
-    use flowopt_planner::problem::{Dim, StartState};
+    use flowopt_planner::problem::{Dim, Obstacle, Spheroid, StartState};
     use flowopt_planner::scenario::RandomScenario;
 
     fn config(robots: usize, extra: &str) -> TeamConfig {
@@ -686,6 +767,15 @@ mod tests {
 
     /// Answers `problem` measured at `origin_ns` (s 1), the deadline
     /// running from `received`.
+    /// Answers as the daemon does when nothing can be planned in time: no
+    /// cold planner, and a deadline long past (a result a cold thread
+    /// finished meanwhile would otherwise be taken, rightly).
+    fn answer_late(planner: &mut TeamPlanner, problem: &Problem, origin_ns: u64) -> Answer {
+        planner.cold = ColdPlanner::start("test", Vec::new(), Duration::ZERO);
+        let long_ago = Instant::now() - Duration::from_secs(5);
+        answer(planner, problem, origin_ns, long_ago)
+    }
+
     fn answer(planner: &mut TeamPlanner, problem: &Problem, origin_ns: u64, received: Instant) -> Answer {
         let deadline = received + planner.deadline();
         planner.answer(problem.clone(), origin_ns, origin_ns / 1_000_000, deadline)
@@ -737,7 +827,15 @@ mod tests {
         three.dim = Dim::Three;
         three.robot = toml::from_str("radius = 0.1").unwrap();
         three.workspace = toml::from_str("min = [-1.0, -1.0, -1.0]\nmax = [1.0, 1.0, 1.0]").unwrap();
+        let two_d = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/weights/flow.safetensors");
+        three.learned.as_mut().unwrap().flow = flowopt_models::shipped::WeightsRef::File(two_d);
         assert!(matches!(TeamPlanner::preload(&three), Err(PreloadError::Model(_))));
+        // A weight file that is named but missing is an error.
+        let mut missing = team.clone();
+        missing.learned.as_mut().unwrap().flow =
+            flowopt_models::shipped::WeightsRef::File("/no/such.safetensors".into());
+        let err = TeamPlanner::preload(&missing).unwrap_err().to_string();
+        assert!(err.contains("/no/such.safetensors"), "{err}");
     }
 
     #[test]
@@ -786,8 +884,7 @@ mod tests {
         answer(&mut planner, &problem, 1_000_000_000, Instant::now());
         // One second later the robots have not moved (frozen, or a restarted
         // controller), and the deadline has already passed.
-        let long_ago = Instant::now() - Duration::from_secs(5);
-        let late = answer(&mut planner, &problem, 2_000_000_000, long_ago);
+        let late = answer_late(&mut planner, &problem, 2_000_000_000);
         assert_eq!((late.follow, late.why, late.warm), (Follow::Stopping, Why::NotFollowing, false));
         let held = planner.held().unwrap();
         assert_eq!((held.kind, held.origin_ns), (Kind::Stopping, 2_000_000_000));
@@ -808,8 +905,7 @@ mod tests {
         }
         // New goals arrive and no plan for them verifies in time.
         moved.goals.rotate_left(1);
-        let long_ago = Instant::now() - Duration::from_secs(5);
-        let late = answer(&mut planner, &moved, 1_300_000_000, long_ago);
+        let late = answer_late(&mut planner, &moved, 1_300_000_000);
         assert_eq!((late.follow, late.why), (Follow::Held, Why::DeadlineMissed));
         assert_eq!(planner.held().unwrap().origin_ns, 1_000_000_000, "unchanged, with its own origin");
     }
@@ -825,12 +921,16 @@ mod tests {
         assert!(speed <= 0.1 && acceleration <= 0.2, "{speed} {acceleration}");
         assert!(held.plan.horizon > planner.team().horizon, "stretched: {}", held.plan.horizon);
         assert_verified_from(&planner, &problem);
-        // From a moving start the plan cannot be stretched: refused.
+        // From a moving start a plan cannot be stretched: one over the
+        // limits is refused, never published.
         let mut moving = problem.clone();
         moving.starts[0].velocity.x = 0.05;
         moving.goals.swap(0, 1);
-        let b = answer(&mut planner, &moving, 2_000_000_000, Instant::now() - Duration::from_secs(5));
-        assert_ne!(b.follow, Follow::New);
+        let b = answer(&mut planner, &moving, 2_000_000_000, Instant::now());
+        if b.follow == Follow::New {
+            let (speed, acceleration) = planner.held().unwrap().plan.peak_rates(4 * planner.team().samples);
+            assert!(speed <= 0.1 && acceleration <= 0.2, "{speed} {acceleration}");
+        }
     }
 
     #[test]
@@ -846,5 +946,114 @@ mod tests {
         assert_eq!((adopted.follow, adopted.why), (Follow::New, Why::None));
         assert_eq!(planner.held().unwrap().kind, Kind::Goals);
         assert_verified_from(&planner, &problem);
+    }
+
+    /// Plans `problem` from rest, then returns the problem of the robots
+    /// on that plan `t` seconds later (origin 1 s + t).
+    fn on_the_plan_after(planner: &mut TeamPlanner, problem: &Problem, t: f64) -> Problem {
+        let first = answer(planner, problem, 1_000_000_000, Instant::now());
+        assert_eq!(first.follow, Follow::New);
+        let plan = planner.held().unwrap().plan.clone();
+        let mut moved = problem.clone();
+        for (s, k) in moved.starts.iter_mut().zip(plan.at(t)) {
+            s.position = k.position;
+            s.velocity = k.velocity;
+        }
+        moved
+    }
+
+    /// An obstacle of radius 0.1 at `position`, moving at `velocity`.
+    fn obstacle(position: Vector3<f64>, velocity: Vector3<f64>) -> Obstacle {
+        Obstacle { position, velocity, shape: Spheroid::ball(0.1) }
+    }
+
+    /// The robot whose path ahead (from `t` on) comes closest to `target`,
+    /// and where it will be 2.5 s later.
+    fn ahead_of(planner: &TeamPlanner, t: f64) -> (usize, Vector3<f64>) {
+        let plan = &planner.held().unwrap().plan;
+        let (here, later) = (plan.at(t), plan.at(t + 2.5));
+        let i = (0..here.len())
+            .max_by(|&a, &b| {
+                let d = |i: usize| (later[i].position - here[i].position).norm();
+                d(a).total_cmp(&d(b))
+            })
+            .unwrap();
+        (i, later[i].position)
+    }
+
+    /// Checks that what the planner holds clears `obstacles` from `origin_ns` on.
+    fn clears(planner: &TeamPlanner, problem: &Problem, origin_ns: u64) {
+        let held = planner.held().expect("a held plan");
+        let elapsed = seconds(held.origin_ns, origin_ns);
+        let window = (held.plan.horizon - elapsed).max(planner.rules.stop_horizon);
+        let check = Recheck::new(&problem.team, &AmSettings::safety_filter());
+        assert!(check.clear(&held.plan, elapsed, window, &problem.obstacles), "the followed plan crosses an obstacle");
+    }
+
+    #[test]
+    fn a_held_plan_an_obstacle_appeared_on_is_replaced_at_once_by_a_verified_stopping_plan() {
+        let mut planner = TeamPlanner::preload(&config(8, "")).unwrap();
+        let problem = RandomScenario::new(planner.team().clone()).generate(11).unwrap();
+        let mut moved = on_the_plan_after(&mut planner, &problem, 0.4);
+        let (_, ahead) = ahead_of(&planner, 0.4);
+        moved.obstacles.push(obstacle(ahead, Vector3::zeros()));
+        // No time to plan around it: the held plan is not re-issued.
+        let a = answer_late(&mut planner, &moved, 1_400_000_000);
+        assert_eq!((a.follow, a.why), (Follow::Stopping, Why::WorldChanged));
+        assert_eq!(planner.held().unwrap().kind, Kind::Stopping);
+        clears(&planner, &moved, 1_400_000_000);
+    }
+
+    #[test]
+    fn a_moving_obstacle_whose_reported_motion_crosses_the_held_plan_is_planned_around_or_stopped_for() {
+        let mut planner = TeamPlanner::preload(&config(8, "")).unwrap();
+        let problem = RandomScenario::new(planner.team().clone()).generate(12).unwrap();
+        let moved = on_the_plan_after(&mut planner, &problem, 0.4);
+        let (_, ahead) = ahead_of(&planner, 0.4);
+        // It walks at 0.4 m/s and reaches that point when the robot does.
+        let velocity = Vector3::new(0.4, 0.0, 0.0);
+        let crossing = Problem { obstacles: vec![obstacle(ahead - velocity * 2.5, velocity)], ..moved.clone() };
+        let check = Recheck::new(&crossing.team, &AmSettings::safety_filter());
+        let held = planner.held().unwrap().plan.clone();
+        assert!(!check.clear(&held, 0.4, 4.6, &crossing.obstacles), "the setup crosses the held plan");
+        for deadline in [Instant::now() - Duration::from_secs(5), Instant::now() + Duration::from_secs(1)] {
+            let mut planner = TeamPlanner::preload(&config(8, "")).unwrap();
+            on_the_plan_after(&mut planner, &problem, 0.4);
+            let a = planner.answer(crossing.clone(), 1_400_000_000, 1400, deadline);
+            assert_ne!(a.follow, Follow::Held, "{a:?}");
+            if a.follow != Follow::Nothing {
+                clears(&planner, &crossing, 1_400_000_000);
+            }
+        }
+    }
+
+    #[test]
+    fn a_snapshot_whose_goals_cannot_be_planned_still_reports_the_world() {
+        let mut planner = TeamPlanner::preload(&config(8, "")).unwrap();
+        let problem = RandomScenario::new(planner.team().clone()).generate(11).unwrap();
+        let moved = on_the_plan_after(&mut planner, &problem, 0.4);
+        // Goals unchanged, nothing new: the held plan may be followed.
+        let same = planner.observe(moved.clone(), 1_400_000_000, 2, Instant::now());
+        assert_eq!(same.follow, Follow::Held);
+        // An obstacle appeared ahead (the same snapshot's goal is in it):
+        // the held plan is no longer followed.
+        let (_, ahead) = ahead_of(&planner, 0.4);
+        let blocked = Problem { obstacles: vec![obstacle(ahead, Vector3::zeros())], ..moved };
+        let a = planner.observe(blocked.clone(), 1_400_000_000, 3, Instant::now() + Duration::from_secs(1));
+        assert_eq!((a.follow, a.why), (Follow::Stopping, Why::WorldChanged));
+        clears(&planner, &blocked, 1_400_000_000);
+    }
+
+    #[test]
+    fn a_plan_is_reissued_without_a_measurement_only_while_the_newest_is_fresh() {
+        let mut planner = TeamPlanner::preload(&config(4, "")).unwrap();
+        let problem = RandomScenario::new(planner.team().clone()).generate(3).unwrap();
+        answer(&mut planner, &problem, 1_000_000_000, Instant::now());
+        let stale = planner.rules.stale_after_ns;
+        assert_eq!(planner.reissue(1_000_000_000 + stale), Follow::Held);
+        assert!(planner.held().is_some());
+        assert_eq!(planner.reissue(1_000_000_001 + stale), Follow::Nothing);
+        assert!(planner.held().is_none(), "nothing is held once nothing is followed");
+        assert_eq!(planner.reissue(1_000_000_000), Follow::Nothing);
     }
 }

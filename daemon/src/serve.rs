@@ -2,16 +2,17 @@
 //! events in one WaitSet and hand the newest snapshot of each team to its
 //! worker, replacing one the worker has not started yet.
 
+use std::cell::Cell;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::thread::JoinHandle;
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
 use crossbeam::channel::{Receiver, Sender, TrySendError, bounded};
 use flowopt_client::clock::monotonic_ns;
-use flowopt_client::ports::cleanup_dead_nodes;
+use flowopt_client::ports::{DEAD_NODE_SWEEP, cleanup_dead_nodes};
 use flowopt_client::{Endpoint, PortError, StateSubscriber, TeamChannel};
 use iceoryx2::prelude::*;
+use iceoryx2_bb_posix::thread::Thread;
 use thiserror::Error;
 use tracing::{debug, info, warn};
 
@@ -19,10 +20,6 @@ use crate::config::DaemonConfig;
 use crate::lock::{LockError, TeamLock};
 use crate::planning::{PreloadError, TeamPlanner};
 use crate::worker::{self, Job};
-
-/// How often the WaitSet wakes up to look at the shutdown flag, besides
-/// the signal that sets it interrupting the wait.
-const SHUTDOWN_POLL: Duration = Duration::from_millis(100);
 
 /// Errors that stop the daemon.
 #[derive(Debug, Error)]
@@ -56,7 +53,14 @@ struct Served {
     jobs: Sender<Job>,
     /// A second receiver of `jobs`, to evict a snapshot not yet started.
     evict: Receiver<Job>,
-    worker: JoinHandle<()>,
+    /// The worker, joined when dropped.
+    worker: Thread,
+    /// Whether the worker returned (rather than panicked).
+    finished: Receiver<bool>,
+    /// The team's state source: the publisher whose snapshots are planned.
+    source: Cell<Option<u128>>,
+    /// Snapshots of a second live publisher ignored so far.
+    ignored: Cell<u64>,
 }
 
 impl Served {
@@ -65,9 +69,13 @@ impl Served {
         let Some(sample) = self.subscriber.latest()? else {
             return Ok(());
         };
+        let publisher = sample.origin().value();
+        if !self.is_the_source(publisher) {
+            return Ok(());
+        }
         let job = Job {
             snapshot: Box::new(*sample.payload()),
-            publisher: sample.origin().value(),
+            publisher,
             received: Instant::now(),
             received_ns: monotonic_ns(),
         };
@@ -83,10 +91,39 @@ impl Served {
             Err(TrySendError::Disconnected(_)) => Err(DaemonError::WorkerGone(self.name.clone())),
         }
     }
+
+    /// Whether a snapshot of `publisher` comes from the team's one state
+    /// source. A new publisher becomes the source once the previous one is
+    /// gone from the service (a crashed controller's is removed by the
+    /// dead-node sweep); while the previous one lives, the newcomer's
+    /// snapshots are ignored, unanswered: no controller is to follow a plan
+    /// made from another's state. (The state service admits one publisher,
+    /// so this only happens on a service another program created with more.)
+    fn is_the_source(&self, publisher: u128) -> bool {
+        match self.source.get() {
+            Some(source) if source == publisher => true,
+            Some(source) if self.subscriber.has_publisher(source) => {
+                let ignored = self.ignored.get() + 1;
+                self.ignored.set(ignored);
+                if ignored.is_power_of_two() {
+                    warn!(team = self.name, ignored, "a second controller publishes this team's state: ignored");
+                }
+                false
+            }
+            previous => {
+                if previous.is_some() {
+                    info!(team = self.name, "a new controller is the team's state source");
+                }
+                self.source.set(Some(publisher));
+                true
+            }
+        }
+    }
 }
 
 /// Runs the daemon until `shutdown` is set (by a signal handler: the
-/// signal also interrupts the wait).
+/// signal also interrupts the wait; the WaitSet also wakes every
+/// [`DEAD_NODE_SWEEP`] to sweep dead nodes and look at the flag).
 pub fn serve(config: &DaemonConfig, shutdown: Arc<AtomicBool>) -> Result<(), DaemonError> {
     match cleanup_dead_nodes() {
         Ok(0) => {}
@@ -111,16 +148,31 @@ pub fn serve(config: &DaemonConfig, shutdown: Arc<AtomicBool>) -> Result<(), Dae
         let (ready_tx, ready) = bounded(1);
         let evict = rx.clone();
         let (cfg, ch) = (team.clone(), channel.clone());
-        let worker = std::thread::Builder::new()
-            .name(format!("plan-{}", team.name))
-            .spawn(move || worker::run(cfg, ch, planner, rx, ready_tx))
+        let (finished_tx, finished) = bounded(1);
+        let work = move || {
+            let run = std::panic::AssertUnwindSafe(|| worker::run(cfg, ch, planner, rx, ready_tx));
+            let _ = finished_tx.send(std::panic::catch_unwind(run).is_ok());
+        };
+        let (worker, _granted) = config
+            .realtime
+            .spawn_worker(&format!("plan-{}", team.name), work)
             .map_err(|_| DaemonError::WorkerGone(team.name.clone()))?;
         ready.recv().map_err(|_| DaemonError::WorkerGone(team.name.clone()))??;
         let subscriber = endpoint.state_subscriber(&channel)?;
-        served.push(Served { name: team.name.clone(), subscriber, jobs, evict, worker });
+        served.push(Served {
+            name: team.name.clone(),
+            subscriber,
+            jobs,
+            evict,
+            worker,
+            finished,
+            source: Cell::new(None),
+            ignored: Cell::new(0),
+        });
         info!(team = team.name, "serving {}/{}/state", config.ipc.prefix, team.name);
     }
 
+    config.realtime.lock_memory_now();
     let waitset = WaitSetBuilder::new()
         .signal_handling_mode(SignalHandlingMode::Disabled)
         .create::<ipc::Service>()
@@ -130,7 +182,7 @@ pub fn serve(config: &DaemonConfig, shutdown: Arc<AtomicBool>) -> Result<(), Dae
         .map(|s| waitset.attach_notification(s.subscriber.listener()))
         .collect::<Result<Vec<_>, _>>()
         .map_err(|e| DaemonError::WaitSet(format!("{e:?}")))?;
-    let _tick = waitset.attach_interval(SHUTDOWN_POLL).map_err(|e| DaemonError::WaitSet(format!("{e:?}")))?;
+    let tick = waitset.attach_interval(DEAD_NODE_SWEEP).map_err(|e| DaemonError::WaitSet(format!("{e:?}")))?;
     // Snapshots published before the daemon started.
     for s in &served {
         s.forward()?;
@@ -140,6 +192,13 @@ pub fn serve(config: &DaemonConfig, shutdown: Arc<AtomicBool>) -> Result<(), Dae
     let mut failure = None;
     while !shutdown.load(Ordering::Relaxed) {
         let result = waitset.wait_and_process(|id| {
+            if id.has_event_from(&tick) {
+                // A crashed controller's successor can publish once its
+                // predecessor's resources are gone.
+                if let Err(e) = cleanup_dead_nodes() {
+                    debug!("dead-node sweep failed: {e}");
+                }
+            }
             for (s, guard) in served.iter().zip(&guards) {
                 if id.has_event_from(guard)
                     && let Err(e) = s.forward()
@@ -162,7 +221,8 @@ pub fn serve(config: &DaemonConfig, shutdown: Arc<AtomicBool>) -> Result<(), Dae
     for s in served {
         drop(s.jobs);
         drop(s.evict);
-        if s.worker.join().is_err() {
+        drop(s.worker);
+        if s.finished.try_recv() != Ok(true) {
             failure.get_or_insert(DaemonError::WorkerGone(s.name));
         }
     }

@@ -17,7 +17,7 @@ use tracing::{debug, info, info_span, warn};
 
 use crate::admission::Admission;
 use crate::config::TeamConfig;
-use crate::convert::{Rejection, problem_from};
+use crate::convert::{Plausible, Rejection, check_header, measured};
 use crate::planning::{Answer, Follow, Held, Stages, TeamPlanner, Why};
 
 /// A snapshot handed from the WaitSet thread to a worker.
@@ -85,8 +85,10 @@ pub(crate) fn run(
                 if !reported_stale && last_job.elapsed() >= stale_after {
                     let (sequence, timestamp) = planner.newest().unwrap_or((0, 0));
                     warn!(team = config.name, sequence, "no snapshot for {stale_after:?}: state is stale");
-                    let reply =
-                        Reply::held(planner.held(), Reason::StaleState, u32::MAX, sequence, timestamp, monotonic_ns());
+                    let now = monotonic_ns();
+                    let follow = planner.reissue(now);
+                    let held = planner.held().filter(|_| follow == Follow::Held);
+                    let reply = Reply::held(held, Reason::StaleState, u32::MAX, sequence, timestamp, now);
                     publish(&publisher, &reply, sequence);
                     reported_stale = true;
                 }
@@ -96,29 +98,55 @@ pub(crate) fn run(
     info!(team = config.name, "worker stopped");
 }
 
-/// Checks the snapshot of `job` and answers it; returns the reply's pieces.
+/// What became of one snapshot.
+#[derive(Debug)]
+enum Outcome {
+    /// Planned: the planner's answer.
+    Planned(Answer),
+    /// A measurement whose task was rejected: the planner's answer in its
+    /// world, reported with the rejection.
+    Task(Answer, Rejection),
+    /// Not a measurement: what is followed now.
+    Rejected(Rejection, Follow),
+}
+
+/// Checks the snapshot of `job` in the documented order (header, clock and
+/// sequence, values, task; [`crate::convert`]) and answers it.
 fn respond(
     config: &TeamConfig,
     planner: &mut TeamPlanner,
     admission: &mut Admission,
     job: &Job,
-) -> Result<(Answer, StageTimings), (Rejection, StageTimings)> {
+) -> (Outcome, StageTimings) {
     let s = &job.snapshot;
     let t = Instant::now();
     let checked = {
         let _span = info_span!("validate").entered();
-        let plausible = config.implausible_factor * config.max_speed;
-        admission
-            .check(job.publisher, s.sequence, s.timestamp_ns, job.received_ns)
-            .and_then(|()| problem_from(s, planner.team(), &config.name, config.max_obstacles, plausible))
+        let plausible = Plausible {
+            robot_speed: config.implausible_factor * config.max_speed,
+            obstacle_speed: config.max_obstacle_speed,
+        };
+        check_header(s, planner.team(), &config.name, config.max_obstacles)
+            .and_then(|()| admission.check(job.publisher, s.sequence, s.timestamp_ns, job.received_ns))
+            .and_then(|()| measured(s, planner.team(), plausible))
     };
     let mut timings = StageTimings { validate_us: us(t.elapsed()), ..StageTimings::default() };
-    let problem = checked.map_err(|rejection| (rejection, timings))?;
+    let measured = match checked {
+        Ok(m) => m,
+        Err(rejection) => return (Outcome::Rejected(rejection, planner.reissue(job.received_ns)), timings),
+    };
     admission.accept(job.publisher, s.sequence);
     let deadline = job.received + planner.deadline();
-    let answer = planner.answer(problem, s.timestamp_ns, s.sequence, deadline);
-    stage_timings(&mut timings, &answer.stages);
-    Ok((answer, timings))
+    let outcome = match measured.task {
+        Ok(()) => Outcome::Planned(planner.answer(measured.problem, s.timestamp_ns, s.sequence, deadline)),
+        Err(rejection) => {
+            Outcome::Task(planner.observe(measured.problem, s.timestamp_ns, s.sequence, deadline), rejection)
+        }
+    };
+    if let Outcome::Planned(answer) | Outcome::Task(answer, _) = &outcome {
+        stage_timings(&mut timings, &answer.stages);
+    }
+    (outcome, timings)
 }
 
 fn answer(
@@ -133,15 +161,23 @@ fn answer(
     let _entered = span.enter();
     let queue = job.received.elapsed();
     let (sequence, timestamp) = (s.sequence, s.timestamp_ns);
-    let mut reply = match respond(config, planner, admission, job) {
-        Ok((answer, timings)) => {
+    let (outcome, timings) = respond(config, planner, admission, job);
+    let mut reply = match &outcome {
+        Outcome::Planned(answer) => {
             debug!(sequence, follow = ?answer.follow, why = ?answer.why, iterations = answer.iterations, "answered");
-            Reply::of(&answer, planner.held(), sequence, timestamp, job.received_ns, timings)
+            Reply::of(answer, planner.held(), sequence, timestamp, job.received_ns, timings)
         }
-        Err((rejection, timings)) => {
+        Outcome::Task(answer, rejection) => {
+            warn!(sequence, reason = ?rejection.reason, index = rejection.index, follow = ?answer.follow, "task rejected");
+            let mut reply = Reply::of(answer, planner.held(), sequence, timestamp, job.received_ns, timings);
+            reply.reason = rejection.reason;
+            reply.reason_index = rejection.index;
+            reply
+        }
+        Outcome::Rejected(rejection, follow) => {
             warn!(sequence, reason = ?rejection.reason, index = rejection.index, "snapshot rejected");
-            let mut reply =
-                Reply::held(planner.held(), rejection.reason, rejection.index, sequence, timestamp, job.received_ns);
+            let held = planner.held().filter(|_| *follow == Follow::Held);
+            let mut reply = Reply::held(held, rejection.reason, rejection.index, sequence, timestamp, job.received_ns);
             reply.timings = timings;
             reply
         }
@@ -241,6 +277,7 @@ fn reason_of(why: Why) -> Reason {
         Why::NotVerified => Reason::NotVerified,
         Why::NotFollowing => Reason::NotFollowing,
         Why::Limits => Reason::Limits,
+        Why::WorldChanged => Reason::WorldChanged,
     }
 }
 
@@ -323,35 +360,58 @@ mod tests {
         Job { snapshot: Box::new(s), publisher: 1, received: Instant::now(), received_ns: monotonic_ns() }
     }
 
+    /// The planner's answer of an outcome that was planned.
+    fn planned(outcome: (Outcome, StageTimings)) -> (Answer, StageTimings) {
+        match outcome {
+            (Outcome::Planned(answer), timings) => (answer, timings),
+            (other, _) => panic!("not planned: {other:?}"),
+        }
+    }
+
     #[test]
     fn bad_snapshots_are_rejected_and_change_nothing() {
         let (config, mut admission) = (config(), admission());
         let mut planner = TeamPlanner::preload(&config).unwrap();
         let problem = RandomScenario::new(planner.team().clone()).generate(1).unwrap();
         let first = job(&problem, 5, |_| {});
-        let (answer, _) = respond(&config, &mut planner, &mut admission, &first).unwrap();
+        let (answer, _) = planned(respond(&config, &mut planner, &mut admission, &first));
         assert_eq!(answer.follow, Follow::New);
         let origin = planner.held().unwrap().origin_ns;
         type Edit = Box<dyn FnOnce(&mut StateSnapshot)>;
         let cases: Vec<(u64, Edit, Reason)> = vec![
             (6, Box::new(|s| s.robot[0].goal[0] = f64::NAN), Reason::NonFinite),
             (7, Box::new(|s| s.robot[2].velocity = [1e6, 0.0, 0.0]), Reason::Implausible),
+            (7, Box::new(|s| s.obstacles = 1), Reason::NonPositiveSize),
             (8, Box::new(|s| s.timestamp_ns = 0), Reason::Clock),
             (9, Box::new(|s| s.timestamp_ns += 3_600_000_000_000), Reason::Clock),
             (5, Box::new(|_| {}), Reason::Sequence),
             (4, Box::new(|_| {}), Reason::Sequence),
             (u64::MAX, Box::new(|_| {}), Reason::Sequence),
+            (10, Box::new(|s| *s = StateSnapshot { version: 0, ..StateSnapshot::new() }), Reason::Version),
         ];
         for (sequence, edit, reason) in cases {
-            let (rejection, _) =
-                respond(&config, &mut planner, &mut admission, &job(&problem, sequence, edit)).unwrap_err();
-            assert_eq!(rejection.reason, reason, "sequence {sequence}");
+            let (outcome, _) = respond(&config, &mut planner, &mut admission, &job(&problem, sequence, edit));
+            let Outcome::Rejected(rejection, follow) = outcome else { panic!("{outcome:?}") };
+            assert_eq!((rejection.reason, follow), (reason, Follow::Held), "sequence {sequence}");
             assert_eq!(planner.held().unwrap().origin_ns, origin, "a rejection keeps the held plan");
             assert_eq!(planner.newest().map(|(s, _)| s), Some(5), "and the newest state");
         }
         // The next valid snapshot is planned: rejected sequences were not recorded.
-        let (answer, _) = respond(&config, &mut planner, &mut admission, &job(&problem, 6, |_| {})).unwrap();
+        let (answer, _) = planned(respond(&config, &mut planner, &mut admission, &job(&problem, 6, |_| {})));
         assert_ne!(answer.follow, Follow::Nothing);
+    }
+
+    #[test]
+    fn a_snapshot_whose_task_is_rejected_is_still_the_newest_measurement() {
+        let (config, mut admission) = (config(), admission());
+        let mut planner = TeamPlanner::preload(&config).unwrap();
+        let problem = RandomScenario::new(planner.team().clone()).generate(1).unwrap();
+        planned(respond(&config, &mut planner, &mut admission, &job(&problem, 5, |_| {})));
+        let goals_overlap = job(&problem, 6, |s| s.robot[1].goal = s.robot[0].goal);
+        let (outcome, _) = respond(&config, &mut planner, &mut admission, &goals_overlap);
+        let Outcome::Task(answer, rejection) = outcome else { panic!("{outcome:?}") };
+        assert_eq!((rejection.reason, answer.follow), (Reason::GoalsOverlap, Follow::Held));
+        assert_eq!(planner.newest().map(|(s, _)| s), Some(6), "its world is the newest");
     }
 
     #[test]
@@ -360,7 +420,7 @@ mod tests {
         let mut planner = TeamPlanner::preload(&config).unwrap();
         let problem = RandomScenario::new(planner.team().clone()).generate(2).unwrap();
         let j = job(&problem, 7, |_| {});
-        let (answer, timings) = respond(&config, &mut planner, &mut admission, &j).unwrap();
+        let (answer, timings) = planned(respond(&config, &mut planner, &mut admission, &j));
         let held = planner.held().unwrap();
         let mut msg = JointTrajectory::new();
         let timestamp = j.snapshot.timestamp_ns;

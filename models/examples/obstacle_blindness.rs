@@ -15,10 +15,9 @@
 //! policy that learnt them scatter around 1: the share at 0.6 or more
 //! tells more than the share at 1.
 
-use std::path::Path;
-
 use flowopt_models::coding::Coding;
 use flowopt_models::pipeline::{FlowOpt, PipelineSettings};
+use flowopt_models::shipped::Weights;
 use flowopt_planner::am::{AmSettings, Budget, Engine, Objective};
 use flowopt_planner::plan::JointPlan;
 use flowopt_planner::problem::{Dim, Problem, Team, scaled_norm};
@@ -53,10 +52,10 @@ fn share(values: &[f64], level: f64) -> f64 {
 
 fn main() -> anyhow::Result<()> {
     let problems: u64 = std::env::args().nth(1).map(|s| s.parse()).transpose()?.unwrap_or(100);
-    let weights = std::env::args().nth(2).unwrap_or_else(|| "models/weights/flow.safetensors".into());
+    let weights = std::env::args().nth(2).map_or_else(|| Weights::shipped_flow(Dim::Two), |w| Weights::parse(&w));
     let robots: usize = std::env::args().nth(3).map(|s| s.parse()).transpose()?.unwrap_or(16);
     let team = Team::default_for(Dim::Two, robots);
-    let flow = FlowOpt::load(Path::new(&weights), None)?;
+    let flow = FlowOpt::load(&weights, None)?;
     let filters = [0, 8].map(|m| Engine::new(&team, m, Objective::Projection, AmSettings::safety_filter()));
     let [Ok(free), Ok(cluttered)] = filters else { anyhow::bail!("building the safety filters") };
     let coding = Coding::new(&team)?;

@@ -17,6 +17,7 @@ use crate::ModelError;
 use crate::coding::{Coding, conditions, obstacle_width, robot_width};
 use crate::dataset::{DataSolver, DatagenConfig, FORMAT, MANIFEST, Manifest, ShardEntry, VERSION, hash_files};
 use crate::pipeline::{DEFAULT_SF_SMOOTHING, LearnedPlanner, PipelineSettings};
+use crate::shipped::Weights;
 
 /// What solves the instances, loaded.
 enum Solving {
@@ -32,8 +33,10 @@ impl Solving {
         Ok(match solver {
             DataSolver::Optimiser => Solving::Optimiser,
             DataSolver::Pipeline { flow, init } => {
-                let init = init.as_ref().map(|i| i.checked()).transpose()?;
-                Solving::Pipeline(Box::new(LearnedPlanner::load(flow.checked()?, init, DEFAULT_SF_SMOOTHING)?))
+                let file = |path: &std::path::Path| Weights::File(path.to_path_buf());
+                let init = init.as_ref().map(|i| i.checked().map(file)).transpose()?;
+                let flow = file(flow.checked()?);
+                Solving::Pipeline(Box::new(LearnedPlanner::load(&flow, init.as_ref(), DEFAULT_SF_SMOOTHING)?))
             }
         })
     }

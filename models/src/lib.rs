@@ -11,6 +11,7 @@
 //! - [`unrolled`]: the differentiable safety filter it is trained through;
 //! - [`train`]: training loops, checkpoints and model cards;
 //! - [`weights`]: weight files with their configuration and statistics;
+//! - [`shipped`]: weight files on disk or built in (the shipped weights);
 //! - [`pipeline`]: sample, rank, initialise, filter, select.
 
 pub mod coding;
@@ -22,6 +23,7 @@ pub mod layers;
 pub mod pairs;
 pub mod pipeline;
 pub mod runtime;
+pub mod shipped;
 pub mod tokens;
 pub mod train;
 pub mod unrolled;

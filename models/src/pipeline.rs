@@ -7,7 +7,6 @@
 //! best-ranked verified plan (or the smoothest: [`Settle`]). Every stage
 //! is timed.
 
-use std::path::Path;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::Instant;
 
@@ -24,6 +23,7 @@ use crate::coding::{Coding, conditions, obstacle_width, robot_width};
 use crate::flow::{FlowConfig, FlowModel, Solver};
 use crate::init::{InitConfig, InitModel};
 use crate::layers::noise;
+use crate::shipped::Weights;
 use crate::tokens::TokenMap;
 use crate::weights::{Stats, load};
 
@@ -279,19 +279,15 @@ pub struct FlowOpt {
 impl FlowOpt {
     /// Loads the flow policy at `flow` and the initialiser at `init`; the
     /// initialiser must share the policy's statistics.
-    pub fn load(flow: &Path, init: Option<&Path>) -> Result<Self, ModelError> {
+    pub fn load(flow: &Weights, init: Option<&Weights>) -> Result<Self, ModelError> {
         let f = load::<FlowConfig>(flow, "flow")?;
         let model = FlowModel::new(f.vars, &f.config)?;
         let tokens = TokenMap::new(f.config.tokens, f.config.dim, f.config.n_xi)?;
         let init = match init {
-            Some(path) => {
-                let i = load::<InitConfig>(path, "init")?;
+            Some(weights) => {
+                let i = load::<InitConfig>(weights, "init")?;
                 if i.stats != f.stats || i.config.dim != f.config.dim || i.config.n_xi != f.config.n_xi {
-                    return Err(ModelError::Config(format!(
-                        "{} was not trained on samples of {}",
-                        path.display(),
-                        flow.display()
-                    )));
+                    return Err(ModelError::Config(format!("{weights} was not trained on samples of {flow}")));
                 }
                 Some(InitModel::new(i.vars, &i.config)?)
             }
@@ -613,7 +609,7 @@ impl LearnedPlanner {
     /// Loads the flow policy at `flow` and the initialiser at `init`;
     /// `sf_smoothing` weighs the smoothness of the filter's corrections
     /// ([`Objective::filter`]; finite, 0 or more).
-    pub fn load(flow: &Path, init: Option<&Path>, sf_smoothing: f64) -> Result<Self, ModelError> {
+    pub fn load(flow: &Weights, init: Option<&Weights>, sf_smoothing: f64) -> Result<Self, ModelError> {
         if !(sf_smoothing.is_finite() && sf_smoothing >= 0.0) {
             return Err(ModelError::Config(format!("the SF smoothing weight {sf_smoothing} is not finite and >= 0")));
         }

@@ -28,6 +28,7 @@ use crate::flow::{FlowConfig, FlowModel};
 use crate::init::{InitConfig, InitModel, tokens_to_coefficients};
 use crate::layers::{initialise, noise};
 use crate::pairs::{pair_rows, pair_width};
+use crate::shipped::Weights;
 use crate::tokens::TokenMap;
 use crate::unrolled::UnrolledSf;
 use crate::weights::{Columns, Stats, save};
@@ -436,7 +437,7 @@ pub fn train_flow(
             (model.clone(), statistics(data, &TokenMap::new(model.tokens, model.dim, model.n_xi)?)?, Vec::new())
         }
         FlowStart::From(path) => {
-            let loaded = crate::weights::load::<FlowConfig>(path, "flow")?;
+            let loaded = crate::weights::load::<FlowConfig>(&Weights::File(path.clone()), "flow")?;
             (loaded.config, loaded.stats, vec![card_input(path)?])
         }
     };
@@ -531,7 +532,7 @@ pub fn train_init(
     checkpoint_dir: &Path,
     progress: impl FnMut(usize, f64, Option<f64>),
 ) -> Result<TrainReport, ModelError> {
-    let flow = crate::weights::load::<FlowConfig>(flow_path, "flow")?;
+    let flow = crate::weights::load::<FlowConfig>(&Weights::File(flow_path.to_path_buf()), "flow")?;
     let stats = flow.stats.clone();
     let flow_net = FlowModel::new(flow.vars, &flow.config)?;
     let reading = Reading::of(&flow.config)?;

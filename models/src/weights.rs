@@ -11,6 +11,7 @@ use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
 
 use crate::ModelError;
+use crate::shipped::Weights;
 
 /// Per-column mean and standard deviation of the network inputs, from the
 /// training dataset.
@@ -116,9 +117,9 @@ pub struct Loaded<C> {
 }
 
 /// Reads a weight file of `kind`.
-pub fn load<C: DeserializeOwned>(path: &Path, kind: &str) -> Result<Loaded<C>, ModelError> {
-    let bytes = std::fs::read(path).map_err(|e| ModelError::io(path, e))?;
-    let bad = |what: String| ModelError::Format(format!("{}: {what}", path.display()));
+pub fn load<C: DeserializeOwned>(weights: &Weights, kind: &str) -> Result<Loaded<C>, ModelError> {
+    let bytes = weights.bytes()?;
+    let bad = |what: String| ModelError::Format(format!("{weights}: {what}"));
     let (_, header) = safetensors::SafeTensors::read_metadata(&bytes).map_err(|e| bad(e.to_string()))?;
     let meta = header.metadata().clone().ok_or_else(|| bad("no metadata".into()))?;
     let field = |name: &str| meta.get(name).cloned().ok_or_else(|| bad(format!("no `{name}` in the metadata")));

@@ -11,6 +11,7 @@ use flowopt_models::dataset::{DataSolver, DatagenConfig, Dataset, WeightFile};
 use flowopt_models::flow::FlowConfig;
 use flowopt_models::init::InitConfig;
 use flowopt_models::pipeline::{DEFAULT_SF_SMOOTHING, FlowOpt, PipelineSettings, Settle};
+use flowopt_models::shipped::Weights;
 use flowopt_models::train::{FlowStart, InitData, TrainConfig, train_flow, train_init};
 use flowopt_planner::am::{AmSettings, AmState, Budget, Engine, Objective, Stop};
 use flowopt_planner::metrics::Metrics;
@@ -110,7 +111,7 @@ fn tiny_networks_learn_and_the_pipeline_plans_with_them() {
     );
 
     // The pipeline with both networks on an unseen instance.
-    let planner = FlowOpt::load(&flow_path, Some(&init_path)).unwrap();
+    let planner = FlowOpt::load(&Weights::File(flow_path.clone()), Some(&Weights::File(init_path.clone()))).unwrap();
     let team = flowopt_planner::problem::Team::default_for(flowopt_planner::problem::Dim::Two, 4);
     let problem = flowopt_planner::scenario::RandomScenario::new(team.clone()).with_obstacles(1).generate(3).unwrap();
     let sf = Engine::new(&team, 1, Objective::filter(init_cfg.sf_smoothing), AmSettings::safety_filter()).unwrap();
@@ -249,7 +250,7 @@ fn an_untrained_initialiser_is_the_plain_start() {
         |_, _, _| {},
     )
     .unwrap();
-    let planner = FlowOpt::load(&flow_path, Some(&init_path)).unwrap();
+    let planner = FlowOpt::load(&Weights::File(flow_path.clone()), Some(&Weights::File(init_path.clone()))).unwrap();
     let team = flowopt_planner::problem::Team::default_for(flowopt_planner::problem::Dim::Two, 4);
     let problem = flowopt_planner::scenario::RandomScenario::new(team.clone()).generate(5).unwrap();
     let sf = Engine::new(&team, 0, Objective::Projection, AmSettings::safety_filter()).unwrap();

@@ -61,6 +61,15 @@ struct SecondDaemon {
     named_the_service: bool,
 }
 
+/// What became of a second controller started for the same team.
+#[derive(Debug, Serialize)]
+struct SecondController {
+    /// It exited by itself with a failure status, before publishing.
+    refused: bool,
+    /// Its error named the team.
+    named_the_team: bool,
+}
+
 /// The daemon's resident memory over the run (KiB).
 #[derive(Debug, Default, Serialize)]
 struct Memory {
@@ -87,16 +96,18 @@ struct DemoReport {
     second_daemon: Option<SecondDaemon>,
     /// With `--faults`: daemon restarts after SIGKILL.
     daemon_restarts: u64,
+    /// With `--faults`: the second controller.
+    second_controller: Option<SecondController>,
 }
 
 /// Runs `flowopt demo`; `trace_out` is handed to the first daemon.
 pub fn run(args: DemoArgs, trace_out: Option<PathBuf>) -> Result<()> {
     let exe = std::env::current_exe().context("cannot find the flowopt executable")?;
     let prefix = args.daemon.ipc_prefix.clone().unwrap_or_else(|| format!("flowopt-demo-{}", std::process::id()));
-    let config = args.daemon.config.display().to_string();
+    let shared = args.daemon.child_args(&prefix);
     let daemon_command = |trace: Option<&PathBuf>| {
         let mut serve = Command::new(&exe);
-        serve.args(["serve", "--config", &config, "--ipc-prefix", &prefix]);
+        serve.arg("serve").args(&shared);
         if let Some(path) = trace {
             serve.arg("--trace-out").arg(path);
         }
@@ -105,7 +116,9 @@ pub fn run(args: DemoArgs, trace_out: Option<PathBuf>) -> Result<()> {
     };
     let mut daemon = daemon_command(trace_out.as_ref()).spawn().context("cannot start the daemon")?;
     let mut sim = Command::new(&exe);
-    sim.args(["sim", "--config", &config, "--ipc-prefix", &prefix, "--json"])
+    sim.arg("sim")
+        .args(&shared)
+        .arg("--json")
         .args(["--seconds", &args.seconds.to_string(), "--rate-hz", &args.rate_hz.to_string()])
         .args(["--seed", &args.seed.to_string()])
         .stdin(Stdio::null())
@@ -127,6 +140,7 @@ pub fn run(args: DemoArgs, trace_out: Option<PathBuf>) -> Result<()> {
 
     let mut memory = Memory::default();
     let mut second_daemon = None;
+    let mut second_controller = None;
     let mut daemon_restarts = 0;
     let mut report_line = None;
     let mut started: Option<Instant> = None;
@@ -159,7 +173,8 @@ pub fn run(args: DemoArgs, trace_out: Option<PathBuf>) -> Result<()> {
             }
             done[k] = true;
             match s.fault {
-                Fault::SecondDaemon => second_daemon = Some(second(&exe, &config, &prefix)?),
+                Fault::SecondDaemon => second_daemon = Some(second(&exe, &shared, &prefix)?),
+                Fault::SecondController => second_controller = Some(other_controller(&exe, &shared)?),
                 Fault::DaemonKill => {
                     daemon.kill().context("cannot kill the daemon")?;
                     daemon.wait()?;
@@ -178,7 +193,8 @@ pub fn run(args: DemoArgs, trace_out: Option<PathBuf>) -> Result<()> {
     }
     let line = report_line.context("the simulator printed no report")?;
     let sim: SimReport = serde_json::from_str(&line).context("cannot read the simulator's report")?;
-    let report = DemoReport { sim, daemon_clean_exit, daemon_rss: memory, second_daemon, daemon_restarts };
+    let report =
+        DemoReport { sim, daemon_clean_exit, daemon_rss: memory, second_daemon, daemon_restarts, second_controller };
     if args.json {
         println!("{}", serde_json::to_string(&report)?);
     } else {
@@ -189,15 +205,19 @@ pub fn run(args: DemoArgs, trace_out: Option<PathBuf>) -> Result<()> {
         if let Some(s) = &report.second_daemon {
             println!("second daemon    refused {}, named the service {}", s.refused, s.named_the_service);
         }
+        if let Some(s) = &report.second_controller {
+            println!("second controller refused {}, named the team {}", s.refused, s.named_the_team);
+        }
     }
     Ok(())
 }
 
 /// Starts a second daemon on the same configuration and prefix and waits
 /// for it to refuse.
-fn second(exe: &PathBuf, config: &str, prefix: &str) -> Result<SecondDaemon> {
+fn second(exe: &PathBuf, shared: &[String], prefix: &str) -> Result<SecondDaemon> {
     let mut child = Command::new(exe)
-        .args(["serve", "--config", config, "--ipc-prefix", prefix])
+        .arg("serve")
+        .args(shared)
         .stdin(Stdio::null())
         .stdout(Stdio::null())
         .stderr(Stdio::piped())
@@ -218,6 +238,31 @@ fn second(exe: &PathBuf, config: &str, prefix: &str) -> Result<SecondDaemon> {
     // Still running: it did not refuse. Stop it.
     stop(&mut child)?;
     Ok(SecondDaemon { refused: false, named_the_service: false })
+}
+
+/// Starts a second simulated controller for the same team and waits for
+/// it to be refused (a team has one state source).
+fn other_controller(exe: &PathBuf, shared: &[String]) -> Result<SecondController> {
+    let mut child = Command::new(exe)
+        .arg("sim")
+        .args(shared)
+        .args(["--seconds", "5", "--seed", "99", "--json"])
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .context("cannot start the second controller")?;
+    let since = Instant::now();
+    while since.elapsed() < REFUSAL_WAIT {
+        if child.try_wait()?.is_some() {
+            let out = child.wait_with_output()?;
+            let text = String::from_utf8_lossy(&out.stderr);
+            return Ok(SecondController { refused: !out.status.success(), named_the_team: text.contains("team \"") });
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    stop(&mut child)?;
+    Ok(SecondController { refused: false, named_the_team: false })
 }
 
 /// The resident set size of process `pid` (KiB), from /proc.

@@ -29,6 +29,14 @@ pub enum Fault {
     SecondDaemon,
     /// The daemon is killed with SIGKILL and started again.
     DaemonKill,
+    /// A static obstacle appears on the held plan's path, ahead of a
+    /// moving robot, for the fault's duration.
+    ObstacleAppears,
+    /// An obstacle walks across the team in flight at walking speed,
+    /// reported with its velocity.
+    ObstacleCrossing,
+    /// A second controller for the same team starts (it must be refused).
+    SecondController,
 }
 
 impl Fault {
@@ -43,6 +51,9 @@ impl Fault {
             Fault::FutureTimestamp => "timestamp_future",
             Fault::SecondDaemon => "second_daemon",
             Fault::DaemonKill => "daemon_sigkill",
+            Fault::ObstacleAppears => "obstacle_appears",
+            Fault::ObstacleCrossing => "obstacle_crossing",
+            Fault::SecondController => "second_controller",
         }
     }
 
@@ -59,7 +70,7 @@ impl Fault {
 
     /// Whether the demo (rather than the simulator) injects it.
     pub fn in_demo(self) -> bool {
-        matches!(self, Fault::SecondDaemon | Fault::DaemonKill)
+        matches!(self, Fault::SecondDaemon | Fault::DaemonKill | Fault::SecondController)
     }
 }
 
@@ -82,8 +93,8 @@ impl Scheduled {
     }
 }
 
-/// The schedule: one of each, in 70 s.
-pub const SCHEDULE: [Scheduled; 8] = [
+/// The schedule: one of each, in 100 s.
+pub const SCHEDULE: [Scheduled; 11] = [
     Scheduled { fault: Fault::ControllerRestart, at_s: 8.0, lasts_s: 0.5 },
     Scheduled { fault: Fault::Frozen, at_s: 18.0, lasts_s: 5.0 },
     Scheduled { fault: Fault::SpeedGlitch, at_s: 32.0, lasts_s: 0.0 },
@@ -92,4 +103,7 @@ pub const SCHEDULE: [Scheduled; 8] = [
     Scheduled { fault: Fault::FutureTimestamp, at_s: 44.0, lasts_s: 0.0 },
     Scheduled { fault: Fault::SecondDaemon, at_s: 50.0, lasts_s: 0.0 },
     Scheduled { fault: Fault::DaemonKill, at_s: 60.0, lasts_s: 0.0 },
+    Scheduled { fault: Fault::ObstacleAppears, at_s: 70.0, lasts_s: 6.0 },
+    Scheduled { fault: Fault::ObstacleCrossing, at_s: 82.0, lasts_s: 6.0 },
+    Scheduled { fault: Fault::SecondController, at_s: 95.0, lasts_s: 0.0 },
 ];

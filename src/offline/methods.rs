@@ -9,6 +9,7 @@ use std::path::PathBuf;
 
 use flowopt_models::flow::Solver;
 use flowopt_models::pipeline::{LearnedPlanner, PipelineOutcome, PipelineSettings, PipelineTimes, Query, Settle};
+use flowopt_models::shipped::Weights;
 use flowopt_planner::am::{
     AmOutcome, AmSettings, AmState, Budget, Engine, EngineSet, Objective, Prepared, Residuals, Stop,
 };
@@ -150,23 +151,18 @@ pub fn smoothing_weight(text: &str) -> Result<f64, String> {
     }
 }
 
-/// The shipped flow policy's and initialiser's weights for teams of `dim`
-/// (paths from the repository root).
+/// The shipped flow policy's and initialiser's weight files for teams of
+/// `dim` (paths from the repository root, for tools that hash the files).
 pub fn shipped_weights(dim: Dim) -> (PathBuf, PathBuf) {
-    let suffix = match dim {
-        Dim::Two => "",
-        Dim::Three => "3d",
-    };
-    let shipped = |name: &str| PathBuf::from(format!("models/weights/{name}{suffix}.safetensors"));
-    (shipped("flow"), shipped("init"))
+    (Weights::shipped_flow(dim).file(), Weights::shipped_init(dim).file())
 }
 
 impl LearnedArgs {
     /// The flow policy's and the initialiser's weights for teams of `dim`
-    /// (the shipped ones unless given).
-    pub fn weights(&self, dim: Dim) -> (PathBuf, PathBuf) {
-        let (flow, init) = shipped_weights(dim);
-        (self.flow_weights.clone().unwrap_or(flow), self.init_weights.clone().unwrap_or(init))
+    /// (the shipped ones, built in, unless given).
+    pub fn weights(&self, dim: Dim) -> (Weights, Weights) {
+        let given = |path: &Option<PathBuf>, shipped: Weights| path.clone().map_or(shipped, Weights::File);
+        (given(&self.flow_weights, Weights::shipped_flow(dim)), given(&self.init_weights, Weights::shipped_init(dim)))
     }
 
     /// The safety filter's objective.
@@ -402,15 +398,11 @@ impl Planner {
         let index = match cached {
             Some(i) => i,
             None => {
-                let (flow, init_path) = args.weights(dim);
-                let init_path = (init && init_path.exists()).then_some(init_path.as_path());
-                let learned = LearnedPlanner::load(&flow, init_path, args.sf_smoothing).with_context(|| {
-                    format!(
-                        "loading the learned planner from {} (relative to the working directory: run from the \
-                             repository root or give --flow-weights and --init-weights)",
-                        flow.display()
-                    )
-                })?;
+                let (flow, init_weights) = args.weights(dim);
+                let init_weights = init_weights.path().is_none_or(|p| p.exists()).then_some(init_weights);
+                let init_weights = init_weights.filter(|_| init);
+                let learned = LearnedPlanner::load(&flow, init_weights.as_ref(), args.sf_smoothing)
+                    .with_context(|| format!("loading the learned planner from {flow}"))?;
                 self.learned.retain(|(d, _)| *d != dim);
                 self.learned.push((dim, learned));
                 self.learned.len() - 1
@@ -465,7 +457,7 @@ impl Planner {
         };
         let model = learned.model();
         if method.uses_initialiser() && !model.has_init() {
-            anyhow::bail!("{} is missing: flowopt needs the SF initialiser", args.weights(first.team.dim).1.display());
+            anyhow::bail!("{} is missing: flowopt needs the SF initialiser", args.weights(first.team.dim).1);
         }
         let seen: Vec<Problem> = problems
             .iter()

@@ -33,12 +33,17 @@ pub struct Setup {
 
 impl Setup {
     pub fn new(test: &str) -> Self {
+        Self::with_deadline(test, 5000.0)
+    }
+
+    /// A setup whose team answers within `deadline_ms`.
+    pub fn with_deadline(test: &str, deadline_ms: f64) -> Self {
         let prefix = format!("flowopt-e2e-{}-{test}", std::process::id());
         let config = std::env::temp_dir().join(format!("{prefix}.toml"));
         let text = format!(
             "[[team]]\nname = \"t\"\ndim = 2\nrobots = {ROBOTS}\nrobot = {{ radius = 0.1 }}\n\
              workspace = {{ min = [-1.0, -1.0], max = [1.0, 1.0] }}\nmax_obstacles = 1\n\
-             deadline_ms = 5000.0\nstale_after_ms = 300.0\n"
+             deadline_ms = {deadline_ms:.1}\nstale_after_ms = 300.0\n"
         );
         std::fs::write(&config, text).unwrap();
         Self { prefix, config }
@@ -64,6 +69,11 @@ impl Setup {
             .env("RUST_LOG", "error")
             .stdin(Stdio::null());
         c
+    }
+
+    /// The channel of the setup's team.
+    pub fn channel(&self) -> TeamChannel {
+        TeamChannel::new(&self.prefix, "t").unwrap()
     }
 
     pub fn controller(&self, name: &str) -> Controller {
@@ -155,15 +165,35 @@ impl Controller {
 
     /// Waits for the next plan message of `status` and `reason`.
     pub fn wait_for(&mut self, status: PlanStatus, reason: Reason) -> Received<JointTrajectory> {
-        let since = Instant::now();
-        while since.elapsed() < ANSWER {
-            if let Some(plan) = self.plans.wait(Duration::from_millis(100)).unwrap()
-                && plan.status() == Ok(status)
-                && plan.reason() == Ok(reason)
-            {
-                return plan;
-            }
-        }
-        panic!("no {status:?} message for {reason:?}");
+        wait_for(&mut self.plans, status, reason)
     }
+}
+
+/// A process that only watches a team's plans (a team has one state
+/// source: a watcher publishes nothing).
+pub struct Watcher {
+    pub _endpoint: Endpoint,
+    pub plans: PlanSubscriber,
+}
+
+impl Watcher {
+    pub fn new(setup: &Setup, name: &str) -> Self {
+        let endpoint = Endpoint::new(name).unwrap();
+        let plans = endpoint.plan_subscriber(&setup.channel()).unwrap();
+        Self { _endpoint: endpoint, plans }
+    }
+}
+
+/// Waits on `plans` for the next plan message of `status` and `reason`.
+pub fn wait_for(plans: &mut PlanSubscriber, status: PlanStatus, reason: Reason) -> Received<JointTrajectory> {
+    let since = Instant::now();
+    while since.elapsed() < ANSWER {
+        if let Some(plan) = plans.wait(Duration::from_millis(100)).unwrap()
+            && plan.status() == Ok(status)
+            && plan.reason() == Ok(reason)
+        {
+            return plan;
+        }
+    }
+    panic!("no {status:?} message for {reason:?}");
 }

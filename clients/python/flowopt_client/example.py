@@ -316,8 +316,8 @@ def main(argv: list[str] | None = None) -> int:
     else:
         for key, value in summary.items():
             print(f"{key:26} {value}")
-        if summary["plans_received"] == 0:
-            print(f"no plan received: is `flowopt serve` running on prefix {prefix!r}?", file=sys.stderr)
+    if summary["plans_received"] == 0:
+        print(f"no plan received: is `flowopt serve` running on prefix {prefix!r}?", file=sys.stderr)
     return 0 if summary["plans_received"] > 0 and summary["contacts"] == 0 else 1
 
 

@@ -51,8 +51,8 @@ class PlanStatus(enum.IntEnum):
 
     @property
     def label(self) -> str:
-        """The lower-case name the daemon's tools use (``ok``, ``no_plan``...)."""
-        return self.name.lower()
+        """The name ``docs/MESSAGES.md`` gives it (``Ok``, ``NoPlan``...)."""
+        return _doc_name(self.name)
 
 
 class Reason(enum.IntEnum):
@@ -81,16 +81,27 @@ class Reason(enum.IntEnum):
     NOT_VERIFIED = 20
     NOT_FOLLOWING = 21
     LIMITS = 22
+    WORLD_CHANGED = 23
 
     @property
     def is_rejection(self) -> bool:
-        """Whether the answered snapshot was rejected (and changed nothing)."""
+        """Whether the answered snapshot was rejected: its task was not
+        planned. Rejected by a header, clock, sequence or value check (1-7,
+        16-18) it changed nothing; rejected for its task (8-13) its robots
+        and obstacles are still the world every followable answer is checked
+        against."""
         return 1 <= self <= 13 or 16 <= self <= 18
 
     @property
     def label(self) -> str:
-        """The lower-case name (``non_finite``, ``deadline_missed``...)."""
-        return self.name.lower()
+        """The name ``docs/MESSAGES.md`` gives it (``NonFinite``,
+        ``DeadlineMissed``...)."""
+        return _doc_name(self.name)
+
+
+def _doc_name(name: str) -> str:
+    """``NO_PLAN`` as the documentation writes it: ``NoPlan``."""
+    return "".join(word.capitalize() for word in name.split("_"))
 
 
 class RobotState(ctypes.Structure):

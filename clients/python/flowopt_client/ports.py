@@ -20,14 +20,18 @@ import iceoryx2 as iox2
 from .messages import WIRE_VERSION, JointTrajectory, StateSnapshot, check_team_name, write_team
 from .plan import Followed, Follower, MessageError, Plan
 
-#: Publishers a service admits.
-MAX_PUBLISHERS = 2
+#: Publishers the state service admits: one state source per team (a
+#: second live controller cannot publish).
+STATE_PUBLISHERS = 1
+#: Publishers the plan service admits (a restarted daemon joins before its
+#: dead predecessor is cleaned up).
+PLAN_PUBLISHERS = 2
 #: Subscribers a service admits.
 MAX_SUBSCRIBERS = 16
 #: Nodes that may open a service.
 MAX_NODES = 32
 #: Notifiers an event service admits.
-MAX_NOTIFIERS = 4 * MAX_PUBLISHERS
+MAX_NOTIFIERS = 8
 #: Listeners an event service admits.
 MAX_LISTENERS = MAX_SUBSCRIBERS
 
@@ -71,6 +75,7 @@ class Endpoint:
         """Opens (or creates) the publish-subscribe service ``name`` of
         ``payload`` (``StateSnapshot`` or ``JointTrajectory``) with the
         daemon's settings: for tools that need raw ports."""
+        publishers = STATE_PUBLISHERS if payload is StateSnapshot else PLAN_PUBLISHERS
         try:
             return (
                 self.node.service_builder(iox2.ServiceName.new(name))
@@ -79,7 +84,7 @@ class Endpoint:
                 .history_size(1)
                 .enable_safe_overflow(True)
                 .subscriber_max_borrowed_samples(2)
-                .max_publishers(MAX_PUBLISHERS)
+                .max_publishers(publishers)
                 .max_subscribers(MAX_SUBSCRIBERS)
                 .max_nodes(MAX_NODES)
                 .open_or_create()
@@ -104,8 +109,24 @@ class Endpoint:
             raise RuntimeError(f"cannot open or create the event service {name}: {error!r}") from error
 
     def state_publisher(self, channel: TeamChannel) -> StatePublisher:
-        """Publishes snapshots of ``channel``'s team."""
-        publisher = self.topic(channel.state, StateSnapshot).publisher_builder().create()
+        """Publishes snapshots of ``channel``'s team, as its one state source.
+
+        Raises ``RuntimeError`` naming the team while another live controller
+        publishes its state; a crashed one's resources are removed first, so
+        its successor takes over at once.
+        """
+        topic = self.topic(channel.state, StateSnapshot)
+        try:
+            publisher = topic.publisher_builder().create()
+        except iox2.PublisherCreateError:
+            self.node.try_cleanup_dead_nodes()
+            try:
+                publisher = topic.publisher_builder().create()
+            except iox2.PublisherCreateError as error:
+                raise RuntimeError(
+                    f"team {channel.team!r} already has a live controller publishing on {channel.state}; "
+                    "a team has one state source (stop the other controller first)"
+                ) from error
         notifier = self.event(channel.state_ready).notifier_builder().create()
         return StatePublisher(publisher, notifier, channel.team)
 

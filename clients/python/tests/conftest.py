@@ -103,6 +103,18 @@ def daemon(flowopt_bin: Path, tmp_path_factory: pytest.TempPathFactory):
     assert status == 0, f"flowopt serve exited with {status}:\n{d.log.read_text(errors='replace')}"
 
 
+@pytest.fixture
+def lone_daemon(flowopt_bin: Path, tmp_path_factory: pytest.TempPathFactory):
+    """A daemon of its own for one test (no other controller on its team:
+    a team has one state source)."""
+    config = Path(os.environ.get("FLOWOPT_CONFIG", REPO / "config/default.toml"))
+    prefix = f"flowopt-pytest-lone-{os.getpid()}-{time.monotonic_ns()}"
+    d = Daemon(flowopt_bin, config, prefix, tmp_path_factory.mktemp("daemon") / "serve.log")
+    yield d
+    status = d.stop()
+    assert status == 0, f"flowopt serve exited with {status}:\n{d.log.read_text(errors='replace')}"
+
+
 class Controller:
     """The controller ports of one test module, and snapshot helpers."""
 

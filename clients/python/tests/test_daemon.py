@@ -5,6 +5,7 @@ example controller."""
 from __future__ import annotations
 
 import ctypes
+import os
 import json
 import subprocess
 import sys
@@ -14,7 +15,7 @@ import numpy as np
 import pytest
 from test_plan import assert_same_as_rust
 
-from flowopt_client import JointTrajectory, PlanStatus, Reason, monotonic_ns, robot_array, write_team
+from flowopt_client import Endpoint, JointTrajectory, PlanStatus, Reason, monotonic_ns, robot_array, write_team
 
 
 def first_ok_answer(controller, timeout_s: float = 10.0):
@@ -131,7 +132,30 @@ def test_a_payload_of_another_type_name_is_refused(controller):
         controller.endpoint.topic(controller.channel.plan, Impostor)
 
 
-def test_the_example_controller_flies_the_team_without_contact(daemon):
+def test_a_second_controller_is_refused_naming_the_team(controller):
+    other = Endpoint(f"flowopt-pytest-other-{os.getpid()}")
+    with pytest.raises(RuntimeError, match=f"team {controller.channel.team!r}.*one state source"):
+        other.state_publisher(controller.channel)
+    sequence, _ = controller.publish()
+    assert controller.answer_to(sequence).status.followable, "the first controller is still served"
+
+
+def test_the_example_hints_at_the_prefix_when_no_plan_comes(daemon):
+    prefix = f"{daemon.prefix}-nobody"
+    result = subprocess.run(
+        [sys.executable, "-m", "flowopt_client.example", "--seconds", "0.3", "--json", "--prefix", prefix],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
+    assert result.returncode == 1
+    assert json.loads(result.stdout)["plans_received"] == 0
+    assert f"is `flowopt serve` running on prefix {prefix!r}" in result.stderr
+
+
+def test_the_example_controller_flies_the_team_without_contact(lone_daemon):
+    daemon = lone_daemon
     result = subprocess.run(
         [
             sys.executable,
@@ -154,5 +178,5 @@ def test_the_example_controller_flies_the_team_without_contact(daemon):
     summary = json.loads(result.stdout)
     assert summary["plans_received"] > 0 and summary["answered"] > 0
     assert summary["contacts"] == 0 and summary["closest_approach_ratio"] >= 1.0
-    assert set(summary["statuses"]) <= {"ok", "held", "stopping", "no_plan"}
+    assert set(summary["statuses"]) <= {"Ok", "Held", "Stopping", "NoPlan"}
     assert summary["latency_ms"]["p50"] > 0

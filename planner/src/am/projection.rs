@@ -127,16 +127,23 @@ impl Limits {
     /// The limits of `problem` on `grid`: every separation scaled by
     /// `scale`, the box moved inwards by `inset` (per axis; negative grows it).
     pub(crate) fn new(problem: &Problem, grid: &SampleGrid, scale: f64, inset: [f64; 3]) -> Self {
+        let times: Vec<f64> = grid.taus.iter().map(|tau| tau * problem.team.horizon).collect();
+        Self::at_times(problem, &times, scale, inset)
+    }
+
+    /// The same limits with the obstacles tracked at `times` (seconds from
+    /// the obstacles' reported positions), one per grid instant.
+    pub(crate) fn at_times(problem: &Problem, times: &[f64], scale: f64, inset: [f64; 3]) -> Self {
         let team = &problem.team;
         let dim = team.dim.axes();
         let (a, b) = team.separation();
-        let count = grid.count();
+        let count = times.len();
         let mut tracks = vec![0.0; problem.obstacles.len() * dim * count];
         let mut obstacle_sep = Vec::with_capacity(problem.obstacles.len());
         for (m, o) in problem.obstacles.iter().enumerate() {
             for ax in 0..dim {
-                for (k, tau) in grid.taus.iter().enumerate() {
-                    tracks[(m * dim + ax) * count + k] = o.position[ax] + o.velocity[ax] * tau * team.horizon;
+                for (k, t) in times.iter().enumerate() {
+                    tracks[(m * dim + ax) * count + k] = o.position[ax] + o.velocity[ax] * t;
                 }
             }
             let (ao, bo) = team.obstacle_separation(&o.shape);
@@ -363,6 +370,25 @@ impl Projection {
         let box_sq = boxed
             .unwrap_or_else(|| clamp_to_box(&self.pos, &mut self.corr, &mut self.touched, limits, dim.axes(), count));
         (pairs + theirs + obstacles).sqrt() + box_sq.sqrt()
+    }
+
+    /// Whether the robots of `xi` keep clear of the obstacles of `limits`
+    /// at every instant of `grid` (pairs and box are not checked), stopping
+    /// at the first violation.
+    pub fn obstacles_clear(&mut self, dim: Dim, robots: usize, grid: &SampleGrid, limits: &Limits, xi: &[f64]) -> bool {
+        let count = grid.count();
+        if count == 0 || limits.obstacle_sep.is_empty() {
+            return true;
+        }
+        let n_xi = grid.pt.len() / count;
+        gemm(&mut self.pos, xi, &grid.pt, dim.axes() * robots, n_xi, count, Accum::Replace);
+        self.first = true;
+        let violation = match dim {
+            Dim::Two => self.obstacles::<2>(robots, count, limits),
+            Dim::Three => self.obstacles::<3>(robots, count, limits),
+        };
+        self.first = false;
+        violation == 0.0
     }
 
     /// Whether `xi` needs no correction at all against `limits` (what a zero

@@ -8,17 +8,21 @@
 //! mocap noise and the robots an unmodelled acceleration disturbance
 //! (seeded), so tracking is imperfect as on real robots.
 //!
-//! Every trajectory taken up is checked independently of the daemon:
-//! collision-free on a dense grid (within the success tolerance) and
-//! starting where the robots are; a failure counts as
+//! Every trajectory the contract says to follow is checked independently
+//! of the daemon ([`check`]): collision-free on a dense grid (within the
+//! success tolerance), starting where the robots are, and clear of the
+//! obstacles reported in the snapshot it answers; a failure counts as
 //! `followed_unverified`. With `--faults` the simulator injects the
-//! controller-side faults of [`crate::live::faults::SCHEDULE`] and reports
-//! every fault's window separately.
+//! controller-side faults of [`crate::live::faults::SCHEDULE`] (bad
+//! snapshots, a restart, frozen robots, obstacles appearing and crossing
+//! the team: [`world`]) and reports every fault's window separately.
 
+mod check;
 mod robots;
 mod tally;
+mod world;
 
-use std::collections::HashMap;
+use std::collections::{HashMap, VecDeque};
 use std::io::Write;
 use std::time::{Duration, Instant};
 
@@ -26,8 +30,7 @@ use anyhow::{Context, Result, bail};
 use clap::Args;
 use flowopt_client::clock::monotonic_ns;
 use flowopt_client::{Endpoint, JointTrajectory, PlanStatus, PlanSubscriber, Reason, StatePublisher, TeamChannel};
-use flowopt_planner::metrics::Metrics;
-use flowopt_planner::problem::{Problem, StartState, Team};
+use flowopt_planner::problem::{Obstacle, Problem};
 use flowopt_planner::scenario::RandomScenario;
 use hdrhistogram::Histogram;
 use serde::{Deserialize, Serialize};
@@ -35,12 +38,14 @@ use tracing::warn;
 
 use crate::live::daemon_args::DaemonArgs;
 use crate::live::faults::{Fault, SCHEDULE, Scheduled};
+use check::{Failure, check};
 use robots::Robots;
 pub use tally::Tally;
+use world::{SimObstacle, World};
 
-/// How far (m) a trajectory taken up may start from the robots' true
-/// positions before the independent check counts it as unverified.
-const START_TOLERANCE: f64 = 0.05;
+/// Snapshots whose reported obstacles are remembered, to check the plans
+/// that answer them.
+const REMEMBERED: usize = 256;
 
 /// Run simulated robots against a running daemon.
 #[derive(Debug, Args)]
@@ -146,20 +151,27 @@ pub fn print_report(r: &SimReport) {
         r.latency_p50_ms, r.latency_p99_ms, r.latency_max_ms
     );
     println!(
-        "contacts         {} (closest approach {:.3} of the separation), followed unverified {}",
+        "contacts         {} robot-robot (closest {:.3} of the separation), {} robot-obstacle (closest {:.3})",
         t.contacts,
         t.closest_approach.unwrap_or(f64::NAN),
-        t.followed_unverified
+        t.obstacle_contacts,
+        t.closest_obstacle_approach.unwrap_or(f64::NAN)
     );
+    println!(
+        "followed         unverified {} (through a reported obstacle {})",
+        t.followed_unverified, t.followed_through_obstacle
+    );
+    println!("answer time      max {:.2} ms, {} after the deadline", t.answer_max_ms, t.late_answers);
     println!("without a plan   longest {:.0} ms", t.longest_without_plan_ms);
     println!("tracking error   mean {:.4} m, max {:.4} m", r.mean_tracking_error_m, r.max_tracking_error_m);
     println!("goal sets        {} reached", r.goal_sets_reached);
     for f in &r.faults {
         println!(
-            "fault {:<18} at {:>5.1} s: contacts {}, closest {:.3}, unverified {}, longest without plan {:.0} ms, injected {} (rejected as expected {}), statuses {:?}",
+            "fault {:<18} at {:>5.1} s: contacts {} + {} obstacle, closest {:.3}, unverified {}, longest without plan {:.0} ms, injected {} (rejected as expected {}), statuses {:?}",
             f.fault,
             f.at_s,
             f.tally.contacts,
+            f.tally.obstacle_contacts,
             f.tally.closest_approach.unwrap_or(f64::NAN),
             f.tally.followed_unverified,
             f.tally.longest_without_plan_ms,
@@ -195,6 +207,8 @@ struct Counters {
     answering_newest: u64,
     /// Injected snapshots: sequence -> (window, expected reason).
     expected: HashMap<u64, (usize, Reason)>,
+    /// The daemon's deadline (ms).
+    deadline_ms: f64,
 }
 
 impl Counters {
@@ -210,19 +224,21 @@ impl Counters {
 
     /// Counts a received message at `t` s into the run.
     fn message(&mut self, msg: &JointTrajectory, t: f64, newest: u64, since_ns: u64) {
+        // Statuses and reasons as docs/MESSAGES.md names them.
         let status = match msg.status() {
-            Ok(PlanStatus::Ok) => "ok",
-            Ok(PlanStatus::Held) => "held",
-            Ok(PlanStatus::Stopping) => "stopping",
-            Ok(PlanStatus::NoPlan) => "no_plan",
-            Err(_) => "unreadable",
+            Ok(s) => format!("{s:?}"),
+            Err(_) => "unreadable".into(),
         };
+        let status = status.as_str();
         let reason = match msg.reason() {
             Ok(Reason::None) => None,
             Ok(r) => Some(format!("{r:?}")),
             Err(_) => Some("unreadable".into()),
         };
         self.each(t, |tally| tally.message(status, reason.as_deref()));
+        if msg.status() == Ok(PlanStatus::NoPlan) {
+            warn!(sequence = msg.answers_sequence, reason = ?msg.reason(), timings = ?msg.timings, "no plan");
+        }
         if msg.status() == Ok(PlanStatus::Ok) && msg.warm_started == 1 {
             self.warm += 1;
         }
@@ -233,6 +249,14 @@ impl Counters {
         if msg.answers_sequence == newest {
             self.answering_newest += 1;
         }
+        if msg.published_ns >= msg.received_ns && msg.received_ns > 0 {
+            let ms = (msg.published_ns - msg.received_ns) as f64 * 1e-6;
+            let deadline = self.deadline_ms;
+            if ms > deadline {
+                warn!(sequence = msg.answers_sequence, timings = ?msg.timings, "answer published {ms:.2} ms after its snapshot's arrival, past the {deadline} ms deadline");
+            }
+            self.each(t, |tally| tally.answered_in(ms, deadline));
+        }
         if let Some((window, expected)) = self.expected.remove(&msg.answers_sequence)
             && msg.reason() == Ok(expected)
         {
@@ -242,36 +266,33 @@ impl Counters {
     }
 }
 
-/// The simulator's own check of a trajectory `f` taken up when the robots
-/// were last moved to `now_ns`: collision-free and inside the box on a
-/// dense grid (within the success tolerance), and starting where the robots
-/// are; what failed, if anything.
-fn independent_check(team: &Team, f: &flowopt_client::Followed, robots: &Robots, now_ns: u64) -> Result<(), String> {
-    let start = f.at(f.origin_ns);
-    let end = f.plan.at(f.plan.horizon);
-    let problem = Problem {
-        team: Team { horizon: f.plan.horizon, ..team.clone() },
-        starts: start
-            .iter()
-            .map(|k| StartState { position: k.position, velocity: k.velocity, acceleration: k.acceleration })
-            .collect(),
-        goals: end.iter().map(|k| k.position).collect(),
-        obstacles: Vec::new(),
-    };
-    let m = Metrics::measure(&problem, &f.plan);
-    let tolerance = flowopt_planner::problem::FEASIBILITY_TOLERANCE;
-    if m.min_robot_scaled < 1.0 - tolerance {
-        return Err(format!("robots come within {:.4} of the separation", m.min_robot_scaled));
+/// The snapshots a run published: what each reported, to check the plans
+/// that answer them against.
+#[derive(Default)]
+struct Reported {
+    /// `(sequence, timestamp, obstacles)`, oldest first.
+    snapshots: VecDeque<(u64, u64, Vec<Obstacle>)>,
+}
+
+impl Reported {
+    fn push(&mut self, sequence: u64, timestamp_ns: u64, obstacles: Vec<Obstacle>) {
+        if self.snapshots.len() == REMEMBERED {
+            self.snapshots.pop_front();
+        }
+        self.snapshots.push_back((sequence, timestamp_ns, obstacles));
     }
-    if m.workspace_excess > tolerance * team.separation().0 {
-        return Err(format!("a robot leaves the box by {:.4} m", m.workspace_excess));
+
+    /// What the newest good snapshot at or before `sequence` reported (a
+    /// rejected one is answered by the plan checked against the one before).
+    fn answered_by(&self, sequence: u64) -> Option<(u64, &[Obstacle])> {
+        self.snapshots.iter().rev().find(|(s, _, _)| *s <= sequence).map(|(_, t, o)| (*t, o.as_slice()))
     }
-    let off = f.at(now_ns).iter().zip(&robots.position).map(|(k, p)| (k.position - p).norm()).fold(0.0, f64::max);
-    if off > START_TOLERANCE {
-        let age = (now_ns as f64 - f.origin_ns as f64) * 1e-6;
-        return Err(format!("it is {off:.4} m from the robots {age:.1} ms after its origin"));
+
+    /// Forgets every snapshot (a restarted controller counts sequences
+    /// from 1 again).
+    fn clear(&mut self) {
+        self.snapshots.clear();
     }
-    Ok(())
 }
 
 fn simulate(args: &SimArgs) -> Result<SimReport> {
@@ -286,13 +307,15 @@ fn simulate(args: &SimArgs) -> Result<SimReport> {
     let channel = TeamChannel::new(&config.ipc.prefix, &team_config.name)?;
     let mut controller = Some(Controller::open(&channel)?);
     let period = Duration::from_secs_f64(1.0 / args.rate_hz);
+    let mut world = World::default();
+    let mut reported = Reported::default();
 
     // Connect: publish the initial state until the daemon answers.
     let connect_deadline = Instant::now() + Duration::from_secs_f64(args.connect_timeout);
     let mut newest;
     loop {
         let c = controller.as_mut().context("the controller is open")?;
-        let measured = robots.measured();
+        let measured = robots.measured(Vec::new());
         newest = publish(&mut c.states, &measured, monotonic_ns(), |_| {})?;
         if c.plans.wait(period)?.is_some() {
             break;
@@ -319,6 +342,7 @@ fn simulate(args: &SimArgs) -> Result<SimReport> {
         warm: 0,
         answering_newest: 0,
         expected: HashMap::new(),
+        deadline_ms: team_config.deadline_ms,
     };
     let mut done = vec![false; schedule.len()];
     let mut report = SimReport { rate_hz: args.rate_hz, robots: team.robots, ..SimReport::default() };
@@ -329,8 +353,10 @@ fn simulate(args: &SimArgs) -> Result<SimReport> {
     let (mut error_sum, mut error_ticks) = (0.0, 0u64);
     let mut goal_round = 0;
     let mut followed_key = None;
+    let mut answered = None;
     let mut without_since: Option<f64> = None;
     let mut restart_at: Option<f64> = None;
+    let mut obstacles_then = Vec::new();
     while started.elapsed().as_secs_f64() < args.seconds {
         // Messages until the next tick.
         loop {
@@ -345,18 +371,25 @@ fn simulate(args: &SimArgs) -> Result<SimReport> {
             if let Some(msg) = c.plans.wait(next - now)? {
                 let t = started.elapsed().as_secs_f64();
                 counters.message(&msg, t, newest, since_ns);
+                answered = Some(msg.answers_sequence);
             }
         }
         let t = started.elapsed().as_secs_f64();
         let now_ns = monotonic_ns();
-        // What the contract says to follow, checked when it changes.
+        // What the contract says to follow, checked on every message that
+        // says to follow something.
         let followed = controller.as_ref().and_then(|c| c.plans.to_follow()).cloned();
-        let key = followed.as_ref().map(|f| (f.plan_sequence, f.origin_ns, f.status));
+        let key = followed.as_ref().map(|f| (f.plan_sequence, f.origin_ns, f.status, answered));
         if key.is_some() && key != followed_key {
             let f = followed.as_ref().context("a followed plan")?;
-            if let Err(why) = independent_check(&team, f, &robots, simulated_ns) {
-                warn!(status = ?f.status, plan_sequence = f.plan_sequence, "followed a plan that fails the check: {why}");
-                counters.each(t, |tally| tally.followed_unverified += 1);
+            let (reported_ns, obstacles) = answered.and_then(|a| reported.answered_by(a)).unwrap_or((0, &[]));
+            if let Err(failure) = check(&team, f, &robots.position, simulated_ns, obstacles, reported_ns) {
+                warn!(status = ?f.status, plan_sequence = f.plan_sequence, "followed a plan that fails the check: {failure:?}");
+                let through = matches!(failure, Failure::ThroughObstacle(_));
+                counters.each(t, |tally| {
+                    tally.followed_unverified += 1;
+                    tally.followed_through_obstacle += u64::from(through);
+                });
             }
         }
         followed_key = key;
@@ -371,11 +404,16 @@ fn simulate(args: &SimArgs) -> Result<SimReport> {
         }
         // Physics catches up with the wall clock, then the state is measured.
         let frozen = schedule.iter().any(|s| s.fault == Fault::Frozen && t >= s.at_s && t < s.at_s + s.lasts_s);
-        let motion = robots.step(followed.as_ref(), frozen, simulated_ns, now_ns);
+        let period_s = (now_ns - simulated_ns) as f64 * 1e-9;
+        let obstacles_now = world.present(t - period_s);
+        if obstacles_now.len() != obstacles_then.len() {
+            robots.obstacles_changed();
+        }
+        let motion = robots.step(followed.as_ref(), frozen, simulated_ns, now_ns, &obstacles_now);
+        obstacles_then = obstacles_now;
         simulated_ns = now_ns;
         counters.each(t, |tally| {
-            tally.distance(motion.closest, false);
-            tally.contacts += motion.contacts;
+            tally.motion(motion.closest, motion.contacts, motion.closest_obstacle, motion.obstacle_contacts);
             tally.workspace_excess_m = tally.workspace_excess_m.max(motion.workspace_excess);
         });
         if followed.is_some() && !frozen {
@@ -385,25 +423,43 @@ fn simulate(args: &SimArgs) -> Result<SimReport> {
         }
         if robots.arrived() {
             report.goal_sets_reached += 1;
-            goal_round += 1;
-            let fresh = scenario.generate(args.seed.wrapping_add(goal_round)).context("drawing new goals")?;
-            robots.goal = fresh.goals;
+            robots.goal = new_goals(&scenario, args.seed, &mut goal_round, &world, t)?;
         }
         // Controller-side faults due now.
         for (k, s) in schedule.iter().enumerate() {
             if done[k] || t < s.at_s || s.fault.in_demo() {
                 continue;
             }
-            done[k] = true;
             match s.fault {
                 Fault::ControllerRestart => {
                     controller = None;
                     restart_at = Some(t + s.lasts_s);
                 }
                 Fault::Frozen => {}
+                Fault::ObstacleAppears => {
+                    // Ahead of a moving robot on the plan it follows; tried
+                    // every tick until one moves.
+                    let Some(f) = followed.as_ref() else { continue };
+                    let Some(at) = world::ahead_of_moving(f, now_ns, &robots.position, &robots.velocity, &robots.goal)
+                    else {
+                        continue;
+                    };
+                    world.add(SimObstacle {
+                        position: at,
+                        velocity: Default::default(),
+                        from_s: t,
+                        until_s: t + s.lasts_s,
+                    });
+                    count_injected(&mut counters, k);
+                }
+                Fault::ObstacleCrossing => {
+                    let centre = robots.position.iter().sum::<nalgebra::Vector3<f64>>() / team.robots as f64;
+                    world.add(world::crossing(&team, centre, t));
+                    count_injected(&mut counters, k);
+                }
                 fault => {
                     let Some(c) = controller.as_mut() else { continue };
-                    let measured = robots.measured();
+                    let measured = robots.measured(world.present(t));
                     let sequence = publish(&mut c.states, &measured, now_ns, |snapshot| match fault {
                         Fault::SpeedGlitch => snapshot.robot[0].velocity = [1e6, 0.0, 0.0],
                         Fault::NanState => snapshot.robot[0].position[0] = f64::NAN,
@@ -412,24 +468,30 @@ fn simulate(args: &SimArgs) -> Result<SimReport> {
                     })?;
                     if let Some(reason) = fault.expected_rejection() {
                         counters.expected.insert(sequence, (k, reason));
-                        counters.overall.injected += 1;
-                        counters.windows[k].1.injected += 1;
+                        count_injected(&mut counters, k);
                     }
                     // Give the answer to the bad snapshot a moment to arrive.
                     if let Some(msg) = c.plans.wait(period / 2)? {
                         counters.message(&msg, t, sequence, since_ns);
+                        answered = Some(msg.answers_sequence);
                     }
                 }
             }
+            done[k] = true;
         }
         if restart_at.is_some_and(|at| t >= at) {
             controller = Some(Controller::open(&channel)?);
             since_ns = monotonic_ns();
+            reported.clear();
+            answered = None;
             restart_at = None;
         }
         if let Some(c) = controller.as_mut() {
-            let measured = robots.measured();
-            newest = publish(&mut c.states, &measured, monotonic_ns(), |_| {})?;
+            let obstacles = world.present(t);
+            let measured = robots.measured(obstacles.clone());
+            let at_ns = monotonic_ns();
+            newest = publish(&mut c.states, &measured, at_ns, |_| {})?;
+            reported.push(newest, at_ns, obstacles);
             report.snapshots += 1;
         }
         next += period;
@@ -465,6 +527,31 @@ fn simulate(args: &SimArgs) -> Result<SimReport> {
         })
         .collect();
     Ok(report)
+}
+
+/// Counts an injected fault in the run and in window `k`.
+fn count_injected(counters: &mut Counters, k: usize) {
+    counters.overall.injected += 1;
+    counters.windows[k].1.injected += 1;
+}
+
+/// The team's next goals: the next seeded draw whose goals keep clear of
+/// the obstacles present `t` s into the run.
+fn new_goals(
+    scenario: &RandomScenario,
+    seed: u64,
+    round: &mut u64,
+    world: &World,
+    t: f64,
+) -> Result<Vec<nalgebra::Vector3<f64>>> {
+    let clearance = scenario.team.robot.radius * 1.5;
+    loop {
+        *round += 1;
+        let fresh = scenario.generate(seed.wrapping_add(*round)).context("drawing new goals")?;
+        if fresh.goals.iter().all(|g| world.clear_of(t, g, clearance)) {
+            return Ok(fresh.goals);
+        }
+    }
 }
 
 /// Publishes `measured`, stamped `at_ns`, changed by `edit`; returns its

@@ -1,10 +1,11 @@
 //! The simulated team: double-integrator robots tracking a trajectory with
 //! a PD controller plus its acceleration as feedforward, braking when there
 //! is none, disturbed by seeded noise; contacts counted on the executed
-//! motion at every integration substep.
+//! motion at every integration substep, between robots and between robots
+//! and the obstacles.
 
 use flowopt_client::Followed;
-use flowopt_planner::problem::{Problem, StartState, Team, scaled_norm};
+use flowopt_planner::problem::{Obstacle, Problem, StartState, Team, scaled_norm};
 use nalgebra::Vector3;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -33,8 +34,13 @@ const DISTURBANCE: f64 = 0.2;
 pub struct Motion {
     /// Closest robot-robot scaled distance in the period.
     pub closest: f64,
-    /// Contacts begun in the period.
+    /// Robot-robot contacts begun in the period.
     pub contacts: u64,
+    /// Closest robot-obstacle scaled distance in the period (infinite
+    /// without obstacles).
+    pub closest_obstacle: f64,
+    /// Robot-obstacle contacts begun in the period.
+    pub obstacle_contacts: u64,
     /// Farthest any robot was outside the workspace (m).
     pub workspace_excess: f64,
     /// Mean and largest distance from the desired positions at the end (m;
@@ -53,6 +59,8 @@ pub struct Robots {
     /// Goals.
     pub goal: Vec<Vector3<f64>>,
     touching: Vec<bool>,
+    /// Per robot, the obstacles (by index into the period's list) it touched.
+    touching_obstacle: Vec<Vec<bool>>,
     rng: ChaCha8Rng,
     disturbance: Vec<Vector3<f64>>,
 }
@@ -68,14 +76,24 @@ impl Robots {
             velocity: vec![Vector3::zeros(); n],
             goal: problem.goals.clone(),
             touching: vec![false; n * n.saturating_sub(1) / 2],
+            touching_obstacle: vec![Vec::new(); n],
             rng: ChaCha8Rng::seed_from_u64(seed),
             disturbance: vec![Vector3::zeros(); n],
         }
     }
 
     /// Advances from `from_ns` to `to_ns` tracking `desired` (braking
-    /// without one); `frozen` robots do not move at all.
-    pub fn step(&mut self, desired: Option<&Followed>, frozen: bool, from_ns: u64, to_ns: u64) -> Motion {
+    /// without one); `frozen` robots do not move at all. `obstacles` are
+    /// where they are at `from_ns` and how they move (the same ones, in
+    /// the same order, from one period to the next while they last).
+    pub fn step(
+        &mut self,
+        desired: Option<&Followed>,
+        frozen: bool,
+        from_ns: u64,
+        to_ns: u64,
+        obstacles: &[Obstacle],
+    ) -> Motion {
         let n = self.team.robots;
         let axes = self.team.dim.axes();
         let h = to_ns.saturating_sub(from_ns) as f64 * 1e-9 / SUBSTEPS as f64;
@@ -84,7 +102,10 @@ impl Robots {
                 w[a] = DISTURBANCE * self.rng.sample::<f64, _>(StandardNormal);
             }
         }
-        let mut motion = Motion { closest: f64::INFINITY, ..Motion::default() };
+        let mut motion = Motion { closest: f64::INFINITY, closest_obstacle: f64::INFINITY, ..Motion::default() };
+        for touched in &mut self.touching_obstacle {
+            touched.resize(obstacles.len(), false);
+        }
         for sub in 0..SUBSTEPS {
             let at = from_ns + ((sub as f64) * h * 1e9) as u64;
             if frozen {
@@ -105,6 +126,9 @@ impl Robots {
                 }
             }
             self.count(&mut motion);
+            let moved: Vec<Obstacle> =
+                obstacles.iter().map(|o| Obstacle { position: o.at((at - from_ns) as f64 * 1e-9 + h), ..*o }).collect();
+            self.count_obstacles(&moved, &mut motion);
         }
         if let Some(f) = desired.filter(|_| !frozen) {
             let errors: Vec<f64> =
@@ -135,6 +159,24 @@ impl Robots {
         }
     }
 
+    fn count_obstacles(&mut self, obstacles: &[Obstacle], motion: &mut Motion) {
+        for (i, touched) in self.touching_obstacle.iter_mut().enumerate() {
+            for (m, o) in obstacles.iter().enumerate() {
+                let (a, b) = self.team.obstacle_separation(&o.shape);
+                let d = scaled_norm(self.team.dim, &(self.position[i] - o.position), a, b);
+                motion.closest_obstacle = motion.closest_obstacle.min(d);
+                let touching = d < 1.0;
+                motion.obstacle_contacts += u64::from(touching && !touched[m]);
+                touched[m] = touching;
+            }
+        }
+    }
+
+    /// Forgets which obstacles the robots touch (the list changed).
+    pub fn obstacles_changed(&mut self) {
+        self.touching_obstacle.iter_mut().for_each(Vec::clear);
+    }
+
     /// Whether every robot is at its goal and stopped.
     pub fn arrived(&self) -> bool {
         (0..self.team.robots).all(|i| {
@@ -142,9 +184,9 @@ impl Robots {
         })
     }
 
-    /// The state as the mocap measures it (with noise): the problem a
-    /// snapshot describes.
-    pub fn measured(&mut self) -> Problem {
+    /// The state as the mocap measures it (with noise), with `obstacles`:
+    /// the problem a snapshot describes.
+    pub fn measured(&mut self, obstacles: Vec<Obstacle>) -> Problem {
         let axes = self.team.dim.axes();
         let mut noise = |sd: f64| {
             let mut v = Vector3::zeros();
@@ -160,6 +202,6 @@ impl Robots {
                 acceleration: Vector3::zeros(),
             })
             .collect();
-        Problem { team: self.team.clone(), starts, goals: self.goal.clone(), obstacles: Vec::new() }
+        Problem { team: self.team.clone(), starts, goals: self.goal.clone(), obstacles }
     }
 }
