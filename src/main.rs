@@ -96,3 +96,31 @@ fn run(cli: Cli) -> Result<()> {
         Command::Eval(args) => eval::run(args),
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use clap::CommandFactory;
+
+    use super::Cli;
+
+    #[test]
+    fn the_command_line_is_well_formed_and_small() {
+        Cli::command().debug_assert();
+        let options = |name: &str| {
+            let cmd = Cli::command();
+            let sub = cmd.find_subcommand(name).unwrap_or_else(|| panic!("no subcommand {name}"));
+            sub.get_arguments().filter(|a| !a.is_positional()).count()
+        };
+        // The everyday flags are named; research knobs go through --set.
+        for name in ["solve", "bench"] {
+            assert!(options(name) <= 25, "{name} has {} options", options(name));
+        }
+        for argv in [
+            &["flowopt", "bench", "--config", "config/default.toml", "--problems", "20", "--json"][..],
+            &["flowopt", "solve", "--set", "learned.candidates=8", "--set", "optimiser.veer=false"][..],
+        ] {
+            assert!(Cli::command().try_get_matches_from(argv).is_ok(), "{argv:?}");
+        }
+        assert!(Cli::command().try_get_matches_from(["flowopt", "bench", "--candidates", "8"]).is_err());
+    }
+}

@@ -18,7 +18,7 @@ fn main() -> Result<(), ClientError> {
     let endpoint = Endpoint::new("example-controller")?;
     let channel = TeamChannel::new("flowopt", "default")?;
     let mut states = endpoint.state_publisher(&channel)?;
-    let mut plans = endpoint.plan_subscriber(&channel)?;
+    let mut plans = endpoint.plan_subscriber(&channel, &states)?;
     let cell = |k: usize| [-0.75 + 0.5 * (k % 4) as f64, -0.75 + 0.5 * (k / 4) as f64, 0.0];
     let mut position: Vec<[f64; 3]> = (0..16).map(cell).collect();
     let mut velocity = vec![[0.0; 3]; 16];

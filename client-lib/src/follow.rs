@@ -1,15 +1,51 @@
 //! The followability contract on the controller's side: from the newest
 //! plan message, which trajectory to follow now.
 //!
-//! A message whose status is followable ([`PlanStatus::Ok`], `Held`,
-//! `Stopping`) carries a trajectory the daemon verified, with its own time
-//! origin; it replaces whatever was followed before. Any other message
+//! A controller follows only answers to snapshots it published itself
+//! (the `answers_sequence` and `state_timestamp_ns` of one of its recent
+//! snapshots, [`Sent`]): never the answer to another process's snapshot,
+//! nor the message a service kept for late joiners. Among those, a message
+//! whose status is followable ([`PlanStatus::Ok`], `Held`, `Stopping`)
+//! carries a trajectory the daemon verified, with its own time origin; it
+//! replaces whatever was followed before. Any other message
 //! ([`PlanStatus::NoPlan`], or one that cannot be read) leaves nothing to
 //! follow: the controller brings its robots to rest by its own means.
+
+use std::cell::RefCell;
+use std::collections::VecDeque;
+use std::rc::Rc;
 
 use flowopt_planner::plan::{JointPlan, Kinematics};
 
 use crate::messages::{JointTrajectory, MessageError, PlanStatus};
+
+/// Snapshots a controller remembers having published, to recognise the
+/// answers to them: at 1 kHz, the last second.
+pub const SENT_REMEMBERED: usize = 1024;
+
+/// The snapshots a controller published most recently, by sequence and
+/// timestamp: its [`crate::ports::StatePublisher`] records them, its plan
+/// subscriber's [`Follower`] reads them (one thread: ports are not `Send`).
+#[derive(Debug, Clone, Default)]
+pub struct Sent(Rc<RefCell<VecDeque<(u64, u64)>>>);
+
+impl Sent {
+    /// Remembers a published snapshot (forgetting the oldest beyond
+    /// [`SENT_REMEMBERED`]).
+    pub fn record(&self, sequence: u64, timestamp_ns: u64) {
+        let mut sent = self.0.borrow_mut();
+        if sent.len() == SENT_REMEMBERED {
+            sent.pop_front();
+        }
+        sent.push_back((sequence, timestamp_ns));
+    }
+
+    /// Whether the snapshot of `sequence` stamped `timestamp_ns` is one of
+    /// the remembered ones.
+    pub fn contains(&self, sequence: u64, timestamp_ns: u64) -> bool {
+        self.0.borrow().iter().rev().any(|&s| s == (sequence, timestamp_ns))
+    }
+}
 
 /// A verified trajectory taken from a plan message.
 #[derive(Debug, Clone, PartialEq)]
@@ -36,30 +72,29 @@ impl Followed {
 #[derive(Debug, Clone, Default)]
 pub struct Follower {
     current: Option<Followed>,
-    /// Messages answering snapshots measured before this are ignored.
-    since_ns: u64,
+    /// The controller's own snapshots; `None`: a watcher, which follows
+    /// nothing.
+    sent: Option<Sent>,
 }
 
 impl Follower {
-    /// Nothing to follow yet; every message counts.
-    pub fn new() -> Self {
+    /// A watcher's: nothing is ever followed.
+    pub fn watcher() -> Self {
         Self::default()
     }
 
-    /// Nothing to follow yet; messages answering snapshots measured before
-    /// `since_ns` are ignored: a (re)started controller follows only
-    /// answers to its own time, not the last message a service kept for
-    /// late joiners (whose plan its robots may have left meanwhile).
-    pub fn since(since_ns: u64) -> Self {
-        Self { current: None, since_ns }
+    /// A controller's: follows answers to the snapshots in `sent` only.
+    pub fn answering(sent: Sent) -> Self {
+        Self { current: None, sent: Some(sent) }
     }
 
-    /// Takes the newest plan message: a followable one becomes the
-    /// trajectory to follow, any other leaves none. A message that cannot be
-    /// read leaves none too, and its error is returned. A message older
-    /// than the follower ([`Follower::since`]) changes nothing.
+    /// Takes the newest plan message. An answer to another snapshot than
+    /// this controller's own changes nothing. Otherwise a followable
+    /// message becomes the trajectory to follow and any other leaves none;
+    /// a message that cannot be read leaves none too, and its error is
+    /// returned.
     pub fn take(&mut self, msg: &JointTrajectory) -> Result<(), MessageError> {
-        if msg.state_timestamp_ns < self.since_ns {
+        if !self.sent.as_ref().is_some_and(|s| s.contains(msg.answers_sequence, msg.state_timestamp_ns)) {
             return Ok(());
         }
         self.current = None;
@@ -94,12 +129,20 @@ mod tests {
         msg.write_plan(&JointPlan::new(&team, coeffs)).unwrap();
         msg.plan_origin_ns = 1_000_000_000;
         msg.plan_sequence = 7;
+        msg.answers_sequence = 9;
+        msg.state_timestamp_ns = 2_000_000_000;
         msg
+    }
+
+    fn controller() -> Follower {
+        let sent = Sent::default();
+        sent.record(9, 2_000_000_000);
+        Follower::answering(sent)
     }
 
     #[test]
     fn followable_messages_replace_the_trajectory_and_others_leave_none() {
-        let mut follower = Follower::new();
+        let mut follower = controller();
         assert!(follower.current().is_none());
         for status in [PlanStatus::Ok, PlanStatus::Held, PlanStatus::Stopping] {
             follower.take(&message(status)).unwrap();
@@ -120,17 +163,36 @@ mod tests {
     }
 
     #[test]
-    fn a_follower_ignores_answers_from_before_its_time() {
-        let mut follower = Follower::since(2_000_000_000);
-        let mut old = message(PlanStatus::Ok);
-        old.state_timestamp_ns = 1_999_999_999;
-        follower.take(&old).unwrap();
-        assert!(follower.current().is_none(), "the message a service kept for late joiners");
-        let mut new = message(PlanStatus::Held);
-        new.state_timestamp_ns = 2_000_000_000;
-        follower.take(&new).unwrap();
+    fn only_answers_to_the_controllers_own_snapshots_are_followed() {
+        let mut follower = controller();
+        // Another controller's snapshot: the same sequence at another time,
+        // or another sequence at the same time.
+        for (sequence, timestamp) in [(9, 2_000_000_001), (8, 2_000_000_000)] {
+            let mut other = message(PlanStatus::Ok);
+            (other.answers_sequence, other.state_timestamp_ns) = (sequence, timestamp);
+            follower.take(&other).unwrap();
+            assert!(follower.current().is_none(), "answer to ({sequence}, {timestamp})");
+        }
+        follower.take(&message(PlanStatus::Held)).unwrap();
         assert_eq!(follower.current().map(|f| f.status), Some(PlanStatus::Held));
-        follower.take(&old).unwrap();
-        assert!(follower.current().is_some(), "an older message changes nothing");
+        // Someone else's no-plan answer changes nothing either.
+        let mut other = message(PlanStatus::NoPlan);
+        other.answers_sequence = 8;
+        follower.take(&other).unwrap();
+        assert!(follower.current().is_some());
+        // A watcher follows nothing.
+        let mut watcher = Follower::watcher();
+        watcher.take(&message(PlanStatus::Ok)).unwrap();
+        assert!(watcher.current().is_none());
+    }
+
+    #[test]
+    fn a_controller_remembers_its_last_snapshots() {
+        let sent = Sent::default();
+        for k in 0..SENT_REMEMBERED as u64 + 1 {
+            sent.record(k, 1000 + k);
+        }
+        assert!(!sent.contains(0, 1000), "the oldest is forgotten");
+        assert!(sent.contains(1, 1001) && sent.contains(SENT_REMEMBERED as u64, 1000 + SENT_REMEMBERED as u64));
     }
 }

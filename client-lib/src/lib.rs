@@ -24,7 +24,7 @@
 //! let endpoint = Endpoint::new("my-controller")?;
 //! let channel = TeamChannel::new("flowopt", "default")?;
 //! let mut states = endpoint.state_publisher(&channel)?;
-//! let mut plans = endpoint.plan_subscriber(&channel)?;
+//! let mut plans = endpoint.plan_subscriber(&channel, &states)?;
 //! states.publish_with(|s| {
 //!     s.dim = 2;
 //!     s.robots = 1;
@@ -52,7 +52,7 @@ pub mod ports;
 
 use thiserror::Error;
 
-pub use follow::{Followed, Follower};
+pub use follow::{Followed, Follower, Sent};
 pub use messages::{
     JointTrajectory, MAX_COEFFS, MAX_OBSTACLES, MAX_ROBOTS, MessageError, ObstacleState, PlanStatus, Reason,
     RobotState, StageTimings, StateSnapshot, TEAM_NAME_LEN, WIRE_VERSION,

@@ -27,7 +27,7 @@ use iceoryx2::service::port_factory::publish_subscribe::PortFactory as Topic;
 use thiserror::Error;
 
 use crate::clock::monotonic_ns;
-use crate::follow::{Followed, Follower};
+use crate::follow::{Followed, Follower, Sent};
 use crate::messages::{
     JointTrajectory, MAX_COEFFS, MAX_ROBOTS, MessageError, RobotState, StateSnapshot, WIRE_VERSION, check_team_name,
 };
@@ -260,15 +260,24 @@ impl Endpoint {
                 e
             }
         })?;
-        Ok(StatePublisher { outlet, team: channel.team.clone(), next_sequence: 1 })
+        Ok(StatePublisher { outlet, team: channel.team.clone(), next_sequence: 1, sent: Sent::default() })
     }
 
     /// For a controller: receives the newest plan of `channel`'s team and
-    /// keeps the trajectory to follow, from answers to snapshots measured
-    /// from now on ([`Follower::since`]).
-    pub fn plan_subscriber(&self, channel: &TeamChannel) -> Result<PlanSubscriber, PortError> {
+    /// keeps the trajectory to follow, from answers to the snapshots
+    /// `states` publishes ([`Follower::answering`]): never another
+    /// process's, nor one kept for late joiners.
+    pub fn plan_subscriber(&self, channel: &TeamChannel, states: &StatePublisher) -> Result<PlanSubscriber, PortError> {
         let inlet = self.inlet(&channel.plan, &channel.plan_ready)?;
-        Ok(PlanSubscriber { inlet, follower: Follower::since(monotonic_ns()) })
+        Ok(PlanSubscriber { inlet, follower: Follower::answering(states.sent.clone()) })
+    }
+
+    /// For a process that only watches `channel`'s plans (a viewer, a
+    /// logger): the newest plan of the team; it never has a trajectory to
+    /// follow ([`PlanSubscriber::to_follow`] is `None`).
+    pub fn plan_watcher(&self, channel: &TeamChannel) -> Result<PlanSubscriber, PortError> {
+        let inlet = self.inlet(&channel.plan, &channel.plan_ready)?;
+        Ok(PlanSubscriber { inlet, follower: Follower::watcher() })
     }
 
     /// For the daemon: receives the newest snapshot of `channel`'s team.
@@ -427,6 +436,8 @@ pub struct StatePublisher {
     outlet: Outlet<StateSnapshot>,
     team: String,
     next_sequence: u64,
+    /// The snapshots published, for the controller's plan subscriber.
+    sent: Sent,
 }
 
 impl StatePublisher {
@@ -438,6 +449,7 @@ impl StatePublisher {
     pub fn publish_with(&mut self, fill: impl FnOnce(&mut StateSnapshot)) -> Result<u64, PortError> {
         let sequence = self.next_sequence;
         let team = &self.team;
+        let mut stamped = (sequence, 0);
         self.outlet.publish_with(|s| {
             s.version = WIRE_VERSION;
             // The channel checked the name.
@@ -445,7 +457,9 @@ impl StatePublisher {
             s.sequence = sequence;
             s.timestamp_ns = monotonic_ns();
             fill(s);
+            stamped = (s.sequence, s.timestamp_ns);
         })?;
+        self.sent.record(stamped.0, stamped.1);
         self.next_sequence += 1;
         Ok(sequence)
     }

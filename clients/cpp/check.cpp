@@ -105,22 +105,35 @@ void check_known_plans() {
 void check_the_contract() {
     auto msg = known_plan(10, 5.0);
     using flowopt::Decision;
+    auto sent = std::make_unique<flowopt::Sent>();
+    sent->record(msg->answers_sequence, msg->state_timestamp_ns);
     for (auto status : {flowopt::PlanStatus::Ok, flowopt::PlanStatus::Held, flowopt::PlanStatus::Stopping}) {
         msg->status = static_cast<std::uint32_t>(status);
-        expect(flowopt::decide(*msg, 0) == Decision::Follow, "a followable status is followed");
+        expect(flowopt::decide(*msg, *sent) == Decision::Follow, "a followable status is followed");
     }
-    expect(flowopt::decide(*msg, msg->state_timestamp_ns + 1) == Decision::Ignore, "an answer from before is ignored");
+    ++msg->state_timestamp_ns;
+    expect(flowopt::decide(*msg, *sent) == Decision::Ignore, "an answer to another snapshot is ignored");
+    --msg->state_timestamp_ns;
+    ++msg->answers_sequence;
+    expect(flowopt::decide(*msg, *sent) == Decision::Ignore, "an answer to another sequence is ignored");
+    --msg->answers_sequence;
+    expect(flowopt::decide(*msg, flowopt::Sent{}) == Decision::Ignore, "a controller that sent nothing follows nothing");
+    auto ring = std::make_unique<flowopt::Sent>();
+    for (std::uint64_t k = 0; k <= flowopt::Sent::REMEMBERED; ++k) {
+        ring->record(k, 1000 + k);
+    }
+    expect(!ring->contains(0, 1000) && ring->contains(1, 1001), "the oldest snapshot is forgotten");
     msg->status = static_cast<std::uint32_t>(flowopt::PlanStatus::NoPlan);
     flowopt::Kinematics k{};
-    expect(flowopt::decide(*msg, 0) == Decision::Rest && !flowopt::sample_robot(*msg, 0, 0.0, k), "NoPlan: rest");
+    expect(flowopt::decide(*msg, *sent) == Decision::Rest && !flowopt::sample_robot(*msg, 0, 0.0, k), "NoPlan: rest");
     msg->status = 9;
-    expect(flowopt::decide(*msg, 0) == Decision::Rest, "an unknown status: rest");
+    expect(flowopt::decide(*msg, *sent) == Decision::Rest, "an unknown status: rest");
     msg->status = 1;
     msg->degree = 16;
-    expect(flowopt::decide(*msg, 0) == Decision::Rest, "an impossible degree: rest");
+    expect(flowopt::decide(*msg, *sent) == Decision::Rest, "an impossible degree: rest");
     msg->degree = 10;
     msg->horizon = std::nan("");
-    expect(flowopt::decide(*msg, 0) == Decision::Rest, "a NaN horizon: rest");
+    expect(flowopt::decide(*msg, *sent) == Decision::Rest, "a NaN horizon: rest");
     expect(flowopt::is_rejection(6) && flowopt::is_rejection(16) && !flowopt::is_rejection(19), "rejections");
 
     flowopt::StateSnapshot snapshot{};

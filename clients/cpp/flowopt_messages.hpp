@@ -18,12 +18,14 @@
 #define FLOWOPT_MESSAGES_HPP
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstddef>
 #include <cstdint>
 #include <cstring>
 #include <string_view>
 #include <type_traits>
+#include <utility>
 
 namespace flowopt {
 
@@ -223,6 +225,36 @@ inline bool has_plan(const JointTrajectory& msg) {
            msg.horizon > 0.0;
 }
 
+/// The snapshots a controller published most recently, by sequence and
+/// timestamp (the last `REMEMBERED`): `record` each one as it is sent, and
+/// `decide` recognises the answers to them.
+class Sent {
+public:
+    /// Snapshots remembered (at 1 kHz, the last second).
+    static constexpr std::size_t REMEMBERED = 1024;
+
+    /// Remembers a published snapshot (forgetting the oldest beyond `REMEMBERED`).
+    void record(std::uint64_t sequence, std::uint64_t timestamp_ns) {
+        ring_[next_ % REMEMBERED] = {sequence, timestamp_ns};
+        ++next_;
+    }
+
+    /// Whether the snapshot of `sequence` stamped `timestamp_ns` is remembered.
+    bool contains(std::uint64_t sequence, std::uint64_t timestamp_ns) const {
+        const std::size_t n = next_ < REMEMBERED ? next_ : REMEMBERED;
+        for (std::size_t i = 0; i < n; ++i) {
+            if (ring_[i].first == sequence && ring_[i].second == timestamp_ns) {
+                return true;
+            }
+        }
+        return false;
+    }
+
+private:
+    std::array<std::pair<std::uint64_t, std::uint64_t>, REMEMBERED> ring_{};
+    std::size_t next_ = 0;
+};
+
 /// What a controller does with the newest plan message it takes (the
 /// followability contract, docs/MESSAGES.md).
 enum class Decision {
@@ -232,15 +264,16 @@ enum class Decision {
     /// Nothing to follow (NoPlan, or a status or shape no daemon writes):
     /// bring the robots to rest by your own means.
     Rest,
-    /// An answer to a snapshot measured before `since_ns` (the last message
-    /// a service keeps for late joiners): change nothing.
+    /// An answer to another snapshot than this controller's own (another
+    /// process's, or the last message a service keeps for late joiners):
+    /// change nothing.
     Ignore,
 };
 
-/// The contract for the newest message `msg`, for a controller that started
-/// at `since_ns` (CLOCK_MONOTONIC).
-inline Decision decide(const JointTrajectory& msg, std::uint64_t since_ns) {
-    if (msg.state_timestamp_ns < since_ns) {
+/// The contract for the newest message `msg`, for a controller that
+/// published the snapshots in `sent`.
+inline Decision decide(const JointTrajectory& msg, const Sent& sent) {
+    if (!sent.contains(msg.answers_sequence, msg.state_timestamp_ns)) {
         return Decision::Ignore;
     }
     return has_plan(msg) ? Decision::Follow : Decision::Rest;

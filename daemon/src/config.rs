@@ -6,7 +6,7 @@ use std::path::Path;
 
 use flowopt_client::messages::check_team_name;
 use flowopt_client::{MAX_COEFFS, MAX_OBSTACLES, MAX_ROBOTS};
-use flowopt_models::pipeline::PipelineSettings;
+use flowopt_methods::PlannerSettings;
 use flowopt_models::shipped::WeightsRef;
 use flowopt_planner::problem::{Dim, ProblemError, Team};
 use flowopt_planner::scenario::{FileBox, FileShape, default_degree, default_horizon, default_samples, file_team};
@@ -157,71 +157,18 @@ pub struct TeamConfig {
     /// is given up.
     #[serde(default = "default_cold_budget_ms")]
     pub cold_budget_ms: f64,
-    /// The learned planner for cold plans, racing the from-scratch
-    /// optimiser; without it the optimiser makes them alone.
-    #[serde(default)]
-    pub learned: Option<LearnedConfig>,
-}
-
-/// The learned planner of a team (`[team.learned]`). Weight paths are
-/// relative to the configuration file's directory ([`DaemonConfig::load`]
-/// resolves them); `"shipped"` names the shipped weights of the team's
-/// dimension, built into the binary.
-#[derive(Debug, Clone, PartialEq, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct LearnedConfig {
-    /// Flow policy weights (default: the shipped ones).
-    #[serde(default)]
-    pub flow: WeightsRef,
-    /// SF initialiser weights (optional: without them the SF starts from
-    /// the samples).
-    #[serde(default)]
-    pub init: Option<WeightsRef>,
-    /// Candidates sampled per cold plan without obstacles.
-    #[serde(default = "default_candidates")]
-    pub candidates: usize,
-    /// Candidates sampled per cold plan with obstacles.
-    #[serde(default = "default_obstacle_candidates")]
-    pub obstacle_candidates: usize,
-    /// Flow integration steps (Euler) for problems without obstacles.
-    #[serde(default = "default_flow_steps")]
-    pub flow_steps: usize,
-    /// Flow integration steps (Euler) for problems with obstacles.
-    #[serde(default = "default_obstacle_flow_steps")]
-    pub obstacle_flow_steps: usize,
-    /// Candidates refined by the safety filter.
-    #[serde(default = "default_top_k")]
-    pub top_k: usize,
-    /// Most sampling rounds per cold plan while none verifies (each within
-    /// the plan's deadline).
-    #[serde(default = "default_rounds")]
-    pub rounds: usize,
-    /// Weight of the correction's smoothness in the safety filter's metric
-    /// (`Objective::SmoothProjection`; 0: the paper's plain projection).
-    #[serde(default = "default_sf_smoothing")]
-    pub sf_smoothing: f64,
-}
-
-fn default_sf_smoothing() -> f64 {
-    flowopt_models::pipeline::DEFAULT_SF_SMOOTHING
-}
-fn default_candidates() -> usize {
-    PipelineSettings::default().candidates
-}
-fn default_obstacle_candidates() -> usize {
-    PipelineSettings::default().obstacle_candidates
-}
-fn default_flow_steps() -> usize {
-    PipelineSettings::default().steps
-}
-fn default_obstacle_flow_steps() -> usize {
-    PipelineSettings::default().obstacle_steps
-}
-fn default_rounds() -> usize {
-    PipelineSettings::default().rounds
-}
-fn default_top_k() -> usize {
-    PipelineSettings::default().top_k
+    /// How far ahead (s) a moving obstacle's motion is predicted from its
+    /// snapshot: every plan keeps clear of it along its reported velocity
+    /// over that long (at least the stopping horizon), of static obstacles
+    /// always ([`Team::obstacle_prediction`]).
+    #[serde(default = "default_obstacle_prediction_s")]
+    pub obstacle_prediction_s: f64,
+    /// How cold plans are made (`[team.planner]`): the method (`auto` by
+    /// default: the learned pipeline races the optimiser where the policy
+    /// lets it) and every planner's knobs, defaults declared by the
+    /// planners; `flowopt bench --config FILE` plans with the same.
+    #[serde(default, deserialize_with = "PlannerSettings::merged")]
+    pub planner: PlannerSettings,
 }
 
 fn default_deadline_ms() -> f64 {
@@ -254,8 +201,23 @@ fn default_warm_tolerance_m() -> f64 {
 fn default_cold_budget_ms() -> f64 {
     2000.0
 }
+fn default_obstacle_prediction_s() -> f64 {
+    2.0
+}
 
 impl TeamConfig {
+    /// The stopping plans' horizon (s): `2 max_speed / max_acceleration`,
+    /// at least 0.5 s.
+    pub fn stop_horizon(&self) -> f64 {
+        (2.0 * self.max_speed / self.max_acceleration).max(0.5)
+    }
+
+    /// How this team's cold plans are made: its `[team.planner]` settings,
+    /// every plan keeping the tracking buffer of `follow_tolerance_m`.
+    pub fn planner_settings(&self, team: &Team) -> PlannerSettings {
+        self.planner.clone().tracking(team, self.follow_tolerance_m)
+    }
+
     /// The planner's description of this team.
     pub fn team(&self) -> Result<Team, ConfigError> {
         let bad = |message: String| ConfigError::BadTeam { name: self.name.clone(), message };
@@ -291,12 +253,13 @@ impl TeamConfig {
         if !(self.replan_hz.is_finite() && self.replan_hz >= 0.0) {
             return Err(bad("replan_hz must be 0 or positive".into()));
         }
-        if let Some(l) = &self.learned
-            && !(l.sf_smoothing.is_finite() && l.sf_smoothing >= 0.0)
-        {
-            return Err(bad("learned.sf_smoothing must be 0 or positive".into()));
+        if !(self.obstacle_prediction_s.is_finite() && self.obstacle_prediction_s >= self.stop_horizon()) {
+            return Err(bad(format!(
+                "obstacle_prediction_s must be at least the stopping horizon ({:.2} s)",
+                self.stop_horizon()
+            )));
         }
-        Ok(team)
+        Ok(Team { obstacle_prediction: Some(self.obstacle_prediction_s), ..team })
     }
 }
 
@@ -313,7 +276,7 @@ impl DaemonConfig {
             WeightsRef::File(p) => WeightsRef::File(dir.join(p)),
             shipped => shipped.clone(),
         };
-        for learned in config.teams.iter_mut().filter_map(|t| t.learned.as_mut()) {
+        for learned in config.teams.iter_mut().map(|t| &mut t.planner.learned) {
             learned.flow = relative(&learned.flow);
             learned.init = learned.init.as_ref().map(relative);
         }
@@ -357,7 +320,7 @@ mod tests {
 
     /// The learned planner's weights of `team` are the shipped ones, built in.
     fn assert_weights_found(team: &TeamConfig) {
-        let learned = team.learned.as_ref().expect("the team races the learned planner");
+        let learned = &team.planner.learned;
         assert_eq!(learned.flow, WeightsRef::Shipped);
         assert!(learned.init.is_none(), "no initialiser");
     }
@@ -376,7 +339,7 @@ mod tests {
         let config = shipped("team64.toml");
         let team = config.teams[0].team().unwrap();
         assert_eq!((team.robots, team.dim), (64, Dim::Two));
-        assert!(config.teams[0].learned.is_none());
+        assert_eq!(config.teams[0].planner.method, flowopt_methods::Method::Auto);
     }
 
     #[test]
@@ -396,7 +359,9 @@ mod tests {
         assert_eq!((t.deadline_ms, t.replan_hz, t.stale_after_ms), (20.0, 0.0, 500.0));
         assert_eq!((t.max_speed, t.max_acceleration, t.implausible_factor), (1.5, 3.0, 2.0));
         assert_eq!((t.clock_skew_ms, t.follow_tolerance_m, t.warm_tolerance_m), (50.0, 0.005, 0.05));
-        assert_eq!(t.max_obstacle_speed, 3.0);
+        assert_eq!((t.max_obstacle_speed, t.obstacle_prediction_s), (3.0, 2.0));
+        assert_eq!(t.planner, PlannerSettings::default());
+        assert_eq!(t.team().unwrap().obstacle_prediction, Some(2.0));
     }
 
     #[test]

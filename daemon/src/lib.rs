@@ -5,11 +5,13 @@
 //! - [`convert`]: a snapshot checked and turned into a planning problem, or a
 //!   rejection with a reason code; [`admission`]: the checks that need the
 //!   daemon's state (clock window, increasing sequences);
-//! - `cold`: cold plans racing on their own threads, anytime;
 //! - [`lock`]: one daemon per team;
 //! - [`planning`]: one team's planner and the followability contract, off
-//!   the wire: held plans, warm starts only from a plan the robots are on,
-//!   cold plans, stopping plans, limits;
+//!   the wire: held plans checked against the newest world, warm starts
+//!   only from a plan the robots are on, cold plans (the race of
+//!   `flowopt_methods`), stopping plans; [`answer`] and [`held`]: what it
+//!   answers and holds; `preload`: building it; `repair`: the safety
+//!   filter's repairs and the limits it keeps;
 //! - [`realtime`]: worker priority, memory locking and CPU pinning, each
 //!   reported when refused;
 //! - [`serve()`]: the service: preloading, a WaitSet on every team's
@@ -17,13 +19,17 @@
 //!   snapshots and writes replies), graceful shutdown.
 
 pub mod admission;
-mod cold;
+pub mod answer;
 pub mod config;
 pub mod convert;
+pub mod held;
 pub mod lock;
 pub mod planning;
+mod preload;
 pub mod realtime;
+mod repair;
 mod serve;
 mod worker;
 
+pub use preload::PreloadError;
 pub use serve::{DaemonError, serve};

@@ -45,214 +45,27 @@
 
 use std::time::{Duration, Instant};
 
-use flowopt_models::pipeline::{LearnedPlanner, PipelineSettings};
-use flowopt_models::shipped::Weights;
-use flowopt_planner::am::{AmSettings, Budget, EngineError, EngineSet, Objective, Recheck, Stop};
-use flowopt_planner::metrics::DENSE_FACTOR;
+use flowopt_methods::{Planned, Race, RaceResult};
+use flowopt_planner::am::EngineSet;
+use flowopt_planner::am::Recheck;
 use flowopt_planner::plan::JointPlan;
 use flowopt_planner::problem::{Problem, Team};
-use flowopt_planner::reference::{ReferenceError, SmoothReference};
+use flowopt_planner::reference::SmoothReference;
 use flowopt_planner::route::Fitter;
-use flowopt_planner::stopping::{stopping_problem, stopping_team};
 use nalgebra::Vector3;
-use thiserror::Error;
-use tracing::{debug, info_span};
+use tracing::debug;
 
-use crate::cold::{ColdPlanner, ColdResult, Method};
-use crate::config::{ConfigError, TeamConfig};
-
-/// Why a team's planner cannot be built.
-#[derive(Debug, Error)]
-pub enum PreloadError {
-    /// The team's configuration is invalid.
-    #[error(transparent)]
-    Config(#[from] ConfigError),
-    /// An engine cannot be built for it.
-    #[error("cannot build the engines: {0}")]
-    Engine(#[from] EngineError),
-    /// The learned planner's weights cannot be loaded or do not fit the team.
-    #[error("cannot load the learned planner: {0}")]
-    Model(#[from] flowopt_models::ModelError),
-}
-
-/// Iteration cap of the warm-start safety filter (about 10 ms for 16
-/// robots); it also gets at most half the deadline, leaving the rest to a
-/// cold plan when it does not verify.
-const WARM_ITERATIONS: usize = 2000;
-
-/// Constraint inflation (relative to the separation) kept beyond the
-/// tracking buffer, so that plans converge to the buffered verification
-/// (the engines' default 5% inflation over their 0% verification).
-const CONSTRAINT_HEADROOM: f64 = 0.03;
-
-/// The relative buffer every plan keeps beyond the robots' separation on the
-/// dense verification grid: twice `follow_tolerance` over the smallest
-/// separation. Two robots that each follow their plan within the tolerance
-/// (the condition for re-issuing a held plan) then cannot touch. Within the
-/// first constraint interval after the (measured, possibly near-contact)
-/// start the buffer is not required.
-pub fn tracking_buffer(team: &Team, follow_tolerance: f64) -> f64 {
-    let (a, b) = team.separation();
-    2.0 * follow_tolerance / a.min(b)
-}
-
-/// Start speed (m/s) below which a robot counts as at rest, so that a plan
-/// may be stretched in time without changing its start.
-const AT_REST: f64 = 0.02;
+use crate::answer::{Answer, Follow, Kind, Why};
+use crate::held::{Candidate, Held, World, same_goals, seconds};
 
 /// Time kept before the deadline to publish an answer: at least this, and
 /// a twentieth of the deadline (the planners check their budget every few
 /// iterations).
 const PUBLISH_MARGIN: Duration = Duration::from_millis(1);
 
-/// Goals closer than this (m) count as unchanged.
-const SAME_GOAL: f64 = 1e-9;
-
-/// What the controllers are to follow after an answer.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Follow {
-    /// A new verified plan (now the held plan).
-    New,
-    /// The held plan, re-issued unchanged.
-    Held,
-    /// A new verified stopping plan (now the held plan).
-    Stopping,
-    /// Nothing: there is no verified trajectory.
-    Nothing,
-}
-
-/// Why an answer is not a new plan.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Why {
-    /// It is one.
-    None,
-    /// No plan verified within the deadline.
-    DeadlineMissed,
-    /// The planners' plans did not verify.
-    NotVerified,
-    /// The robots had left the held plan.
-    NotFollowing,
-    /// The verified plan exceeds the speed or acceleration limits.
-    Limits,
-    /// The held plan no longer clears the newest snapshot's obstacles.
-    WorldChanged,
-}
-
-/// What kind of plan is held.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Kind {
-    /// A plan to the goals.
-    Goals,
-    /// A plan bringing the robots to rest.
-    Stopping,
-}
-
-/// Time spent in each planning stage (zero for a stage not run).
-#[derive(Debug, Clone, Copy, Default, PartialEq)]
-pub struct Stages {
-    /// Shifting the previous plan to the new start and fitting it.
-    pub warm_start: Duration,
-    /// Sampling candidates from the flow policy.
-    pub sample: Duration,
-    /// Ranking the candidates.
-    pub rank: Duration,
-    /// The initialisation network.
-    pub init: Duration,
-    /// The safety filter (warm start, learned candidates, stopping plan).
-    pub filter: Duration,
-    /// The from-scratch optimiser.
-    pub optimise: Duration,
-    /// Choosing among refined candidates.
-    pub select: Duration,
-}
-
-/// The last verified plan published: what the controllers follow.
-#[derive(Debug, Clone)]
-pub struct Held {
-    /// The plan.
-    pub plan: JointPlan,
-    /// Its time origin (ns, the clock of the snapshots).
-    pub origin_ns: u64,
-    /// The snapshot it was made from.
-    pub sequence: u64,
-    /// To the goals, or to rest.
-    pub kind: Kind,
-    /// Its primal residual (m).
-    pub primal: f64,
-    /// Its smoothness.
-    pub smoothness: f64,
-    /// Its largest speed (m/s).
-    pub max_speed: f64,
-    /// Its largest acceleration (m/s^2).
-    pub max_acceleration: f64,
-    goals: Vec<Vector3<f64>>,
-}
-
-impl Held {
-    /// How far (m) the robots of `problem`, measured at `origin_ns`, are from
-    /// this plan.
-    fn deviation(&self, problem: &Problem, origin_ns: u64) -> f64 {
-        self.plan.deviation(seconds(self.origin_ns, origin_ns), &problem.starts)
-    }
-}
-
-/// Seconds from `from_ns` to `to_ns` (negative if earlier).
-fn seconds(from_ns: u64, to_ns: u64) -> f64 {
-    (to_ns as i128 - from_ns as i128) as f64 * 1e-9
-}
-
-/// Whether `goals` are `problem`'s goals.
-fn same_goals(goals: &[Vector3<f64>], problem: &Problem) -> bool {
-    goals.len() == problem.goals.len() && goals.iter().zip(&problem.goals).all(|(a, b)| (a - b).norm() <= SAME_GOAL)
-}
-
-/// What one snapshot (or a late cold plan) produced.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Answer {
-    /// What to follow: for `New`, `Held` and `Stopping`, [`TeamPlanner::held`].
-    pub follow: Follow,
-    /// Why it is not a new plan.
-    pub why: Why,
-    /// Iterations spent on this answer.
-    pub iterations: usize,
-    /// Whether the new plan came from the warm start.
-    pub warm: bool,
-    /// Candidates refined for it.
-    pub candidates: usize,
-    /// Stage times of this answer.
-    pub stages: Stages,
-}
-
-impl Answer {
-    fn new(follow: Follow, why: Why) -> Self {
-        Self { follow, why, iterations: 0, warm: false, candidates: 0, stages: Stages::default() }
-    }
-}
-
-/// A verified plan made from some state, not yet published.
-#[derive(Debug, Clone)]
-struct Candidate {
-    plan: JointPlan,
-    /// The problem it starts from (with the start accelerations it has).
-    problem: Problem,
-    origin_ns: u64,
-    sequence: u64,
-    primal: f64,
-}
-
-/// The newest accepted measurement: every followable answer is checked
-/// against it.
-#[derive(Debug, Clone)]
-struct World {
-    /// The robots, their goals (which may not be plannable) and the obstacles.
-    problem: Problem,
-    origin_ns: u64,
-    sequence: u64,
-}
-
 /// A cold request in flight.
 #[derive(Debug, Clone)]
-struct Pending {
+pub(crate) struct Pending {
     id: u64,
     goals: Vec<Vector3<f64>>,
     obstacles: usize,
@@ -273,123 +86,50 @@ enum Fallback {
 
 /// The team's limits and tolerances.
 #[derive(Debug, Clone, Copy)]
-struct Rules {
-    deadline: Duration,
-    max_speed: f64,
-    max_acceleration: f64,
-    follow_tolerance: f64,
-    warm_tolerance: f64,
+pub(crate) struct Rules {
+    /// The time an answer may take from its snapshot's arrival.
+    pub(crate) deadline: Duration,
+    /// The robots' top speed (m/s).
+    pub(crate) max_speed: f64,
+    /// Their top acceleration (m/s^2).
+    pub(crate) max_acceleration: f64,
+    /// Robots within this distance (m) of a plan follow it.
+    pub(crate) follow_tolerance: f64,
+    /// Robots within this distance (m) of the held plan are warm-started.
+    pub(crate) warm_tolerance: f64,
     /// How old the newest accepted snapshot may be for a plan to be
     /// re-issued without a newer one (ns).
-    stale_after_ns: u64,
+    pub(crate) stale_after_ns: u64,
     /// The stopping plans' horizon (s): every followable plan is checked at
     /// least this far ahead.
-    stop_horizon: f64,
+    pub(crate) stop_horizon: f64,
 }
 
 /// A team's preloaded engines and its planning state.
 #[derive(Debug)]
 pub struct TeamPlanner {
-    team: Team,
-    rules: Rules,
+    pub(crate) team: Team,
+    pub(crate) rules: Rules,
     /// Warm-start safety filters, one per obstacle count.
-    filters: EngineSet,
+    pub(crate) filters: EngineSet,
     /// Stopping-plan safety filters (the stopping horizon), one per count.
-    stops: EngineSet,
-    stop_reference: SmoothReference,
-    fitter: Fitter,
+    pub(crate) stops: EngineSet,
+    pub(crate) stop_reference: SmoothReference,
+    pub(crate) fitter: Fitter,
     /// The obstacle checks of held plans against the newest world: plans
     /// to the goals with the tracking buffer, stopping plans without.
-    recheck_goals: Recheck,
-    recheck_stops: Recheck,
-    cold: ColdPlanner,
-    held: Option<Held>,
-    newest: Option<World>,
-    pending: Option<Pending>,
+    pub(crate) recheck_goals: Recheck,
+    pub(crate) recheck_stops: Recheck,
+    pub(crate) cold: Race,
+    pub(crate) held: Option<Held>,
+    pub(crate) newest: Option<World>,
+    pub(crate) pending: Option<Pending>,
     /// A verified cold plan whose start the robots had left: the next
     /// warm start's sample.
-    fresh: Option<Candidate>,
+    pub(crate) fresh: Option<Candidate>,
 }
 
 impl TeamPlanner {
-    /// Builds every engine (basis, sample grids, KKT factorisations) the
-    /// team can need, so that no snapshot waits for one, and starts the
-    /// cold-planning threads.
-    pub fn preload(config: &TeamConfig) -> Result<Self, PreloadError> {
-        let team = config.team()?;
-        let buffer = tracking_buffer(&team, config.follow_tolerance_m);
-        let buffered = |s: AmSettings| AmSettings {
-            margin: s.margin.max(buffer + CONSTRAINT_HEADROOM),
-            verify_margin: buffer,
-            verify_skip: DENSE_FACTOR,
-            ..s
-        };
-        let max = config.max_obstacles;
-        let filter_settings = buffered(AmSettings { max_iterations: WARM_ITERATIONS, ..AmSettings::safety_filter() });
-        let filters = EngineSet::preloaded(&team, Objective::Projection, filter_settings, max)?;
-        let stop_horizon = (2.0 * config.max_speed / config.max_acceleration).max(0.5);
-        let stop_team = stopping_team(&team, stop_horizon);
-        // Stopping plans, the last resort before none, are verified at the
-        // true sizes: robots a jam has left within the buffer of each other
-        // are then still held apart under control instead of braking on
-        // their own (and drifting) with no plan at all.
-        let stop_settings = AmSettings { verify_margin: 0.0, ..buffered(AmSettings::safety_filter()) };
-        let stops = EngineSet::preloaded(&stop_team, Objective::Projection, stop_settings, max)?;
-        let stop_reference = SmoothReference::new(&stop_team).map_err(|e| match e {
-            ReferenceError::Basis(b) => EngineError::Problem(b.into()),
-            ReferenceError::Kkt(k) => EngineError::Kkt(k),
-        })?;
-        let basis = team.basis().map_err(|e| EngineError::Problem(e.into()))?;
-        let fitter = Fitter::new(&basis).map_err(EngineError::Kkt)?;
-        let mut methods = Vec::new();
-        if let Some(l) = &config.learned {
-            let flow = l.flow.resolve(team.dim, Weights::shipped_flow);
-            let init = l.init.as_ref().map(|i| i.resolve(team.dim, Weights::shipped_init));
-            let planner = LearnedPlanner::load(&flow, init.as_ref(), l.sf_smoothing)?;
-            let filters = planner.filters(&team, filter_settings, max)?;
-            let settings = PipelineSettings {
-                candidates: l.candidates,
-                obstacle_candidates: l.obstacle_candidates,
-                steps: l.flow_steps,
-                obstacle_steps: l.obstacle_flow_steps,
-                top_k: l.top_k,
-                rounds: l.rounds,
-                use_init: planner.model().has_init(),
-                // Racing the optimiser, the learned planner keeps to one core.
-                threads: 1,
-                obstacle_threads: 1,
-                ..PipelineSettings::default()
-            };
-            methods.push(Method::Learned { planner: Box::new(planner), settings, filters, plans: 0 });
-        }
-        let optimisers = EngineSet::preloaded(&team, Objective::smoothness(), buffered(AmSettings::optimiser()), max)?;
-        methods.push(Method::Optimiser(optimisers));
-        let cold = ColdPlanner::start(&config.name, methods, Duration::from_secs_f64(config.cold_budget_ms * 1e-3));
-        Ok(Self {
-            recheck_goals: Recheck::new(&team, &filter_settings),
-            recheck_stops: Recheck::new(&stop_team, &stop_settings),
-            team,
-            rules: Rules {
-                deadline: Duration::from_secs_f64(config.deadline_ms * 1e-3),
-                max_speed: config.max_speed,
-                max_acceleration: config.max_acceleration,
-                follow_tolerance: config.follow_tolerance_m,
-                warm_tolerance: config.warm_tolerance_m,
-                stale_after_ns: (config.stale_after_ms * 1e6) as u64,
-                stop_horizon,
-            },
-            filters,
-            stops,
-            stop_reference,
-            fitter,
-            cold,
-            held: None,
-            newest: None,
-            pending: None,
-            fresh: None,
-        })
-    }
-
     /// The team.
     pub fn team(&self) -> &Team {
         &self.team
@@ -411,7 +151,7 @@ impl TeamPlanner {
     }
 
     /// Where late cold plans arrive; hand each to [`Self::on_cold`].
-    pub(crate) fn cold_results(&self) -> crossbeam::channel::Receiver<ColdResult> {
+    pub(crate) fn cold_results(&self) -> crossbeam::channel::Receiver<RaceResult> {
         self.cold.results().clone()
     }
 
@@ -497,12 +237,13 @@ impl TeamPlanner {
             .as_ref()
             .is_some_and(|p| same_goals(&p.goals, &world.problem) && p.obstacles == world.problem.obstacles.len());
         if !running {
-            let id = self.cold.submit(&world.problem, origin_ns, sequence);
+            // The snapshot's sequence seeds the learned planner's noise.
+            let id = self.cold.submit(&world.problem, sequence, origin_ns, sequence);
             self.pending = Some(Pending {
                 id,
                 goals: world.problem.goals.clone(),
                 obstacles: world.problem.obstacles.len(),
-                outstanding: self.cold.methods(),
+                outstanding: self.cold.members(),
             });
         }
         // Wait for the cold plan until the answer is due.
@@ -563,20 +304,24 @@ impl TeamPlanner {
     /// A cold result that arrived outside any snapshot's deadline: adopted
     /// if it verified and may be followed in the newest world (or can be
     /// repaired from there at once), returned as the answer to publish.
-    pub(crate) fn on_cold(&mut self, result: ColdResult) -> Option<Answer> {
+    pub(crate) fn on_cold(&mut self, result: RaceResult) -> Option<Answer> {
         let mut answer = Answer::new(Follow::Nothing, Why::None);
         let until = Instant::now() + self.rules.deadline / 2;
         self.take_cold(result, &mut answer, until)
     }
 
     /// Takes one cold result: the answer if its plan was adopted.
-    fn take_cold(&mut self, result: ColdResult, answer: &mut Answer, until: Instant) -> Option<Answer> {
-        debug!(method = result.method, verified = result.outcome.plan.is_some(), "cold result");
+    fn take_cold(&mut self, result: RaceResult, answer: &mut Answer, until: Instant) -> Option<Answer> {
+        let verified = result.outcome.as_ref().is_ok_and(Planned::verified);
+        debug!(by = result.by, verified, "cold result");
         let pending = self.pending.as_mut().filter(|p| p.id == result.request.id)?;
         pending.outstanding = pending.outstanding.saturating_sub(1);
-        answer.iterations += result.outcome.iterations;
-        add_stages(&mut answer.stages, &result.outcome.stages);
-        let Some(plan) = result.outcome.plan else {
+        let planned = result.outcome.ok();
+        if let Some(p) = &planned {
+            answer.iterations += p.iterations;
+            answer.stages.add(&p.stages);
+        }
+        let Some(planned) = planned.filter(Planned::verified) else {
             if pending.outstanding == 0 {
                 self.pending = None;
             }
@@ -585,9 +330,9 @@ impl TeamPlanner {
         // The first verified plan wins the race.
         self.cold.cancel();
         self.pending = None;
-        answer.candidates = result.outcome.candidates;
+        answer.candidates = planned.candidates;
         let request = result.request;
-        let Ok(plan) = self.within_limits(plan, &request.problem) else {
+        let Ok(plan) = self.within_limits(planned.plan, &request.problem) else {
             answer.why = Why::Limits;
             return None;
         };
@@ -596,7 +341,7 @@ impl TeamPlanner {
             problem: request.problem,
             origin_ns: request.origin_ns,
             sequence: request.sequence,
-            primal: result.outcome.primal,
+            primal: planned.primal,
         };
         let world = self.newest.clone()?;
         if !same_goals(&candidate.problem.goals, &world.problem) {
@@ -615,67 +360,12 @@ impl TeamPlanner {
         }
     }
 
-    /// The safety filter on `sample` shifted by `dt` for `world`: a
-    /// verified candidate within the limits, `None` if it did not verify,
-    /// or why it cannot be published.
-    fn refine(
-        &self,
-        sample: &JointPlan,
-        dt: f64,
-        world: &World,
-        until: Instant,
-        answer: &mut Answer,
-    ) -> Result<Option<Candidate>, Why> {
-        let t = Instant::now();
-        let mut start = world.problem.clone();
-        let xi = {
-            let _span = info_span!("warm_start").entered();
-            sample.shifted(dt.max(0.0), &mut start, &self.fitter)
-        };
-        answer.stages.warm_start += t.elapsed();
-        let t = Instant::now();
-        let _span = info_span!("filter").entered();
-        let outcome = self.filters.get(start.obstacles.len()).and_then(|engine| {
-            let prepared = engine.prepare(&start, Some(&xi)).ok()?;
-            Some((engine, engine.run_within(&prepared, engine.cold_start(&prepared), &Budget::until(until))))
-        });
-        answer.stages.filter += t.elapsed();
-        let Some((engine, outcome)) = outcome else { return Ok(None) };
-        answer.iterations += outcome.iterations;
-        answer.candidates = 1;
-        if outcome.stop != Stop::Verified {
-            return Ok(None);
-        }
-        let plan = self.within_limits(engine.plan(outcome.state.xi), &start)?;
-        let (origin_ns, sequence) = (world.origin_ns, world.sequence);
-        Ok(Some(Candidate { plan, problem: start, origin_ns, sequence, primal: outcome.primal }))
-    }
-
-    /// `plan` if it keeps the team's speed and acceleration limits; else
-    /// stretched in time when the robots start at rest and every obstacle is
-    /// static (the paths, and so the verified clearances, are unchanged);
-    /// else [`Why::Limits`].
-    fn within_limits(&self, plan: JointPlan, problem: &Problem) -> Result<JointPlan, Why> {
-        let (speed, acceleration) = plan.peak_rates(DENSE_FACTOR * self.team.samples);
-        let factor = (speed / self.rules.max_speed).max((acceleration / self.rules.max_acceleration).sqrt());
-        if factor <= 1.0 {
-            return Ok(plan);
-        }
-        let at_rest = problem.starts.iter().all(|s| s.velocity.norm() <= AT_REST && s.acceleration.norm() <= AT_REST);
-        let static_obstacles = problem.obstacles.iter().all(|o| o.velocity.norm() == 0.0);
-        if at_rest && static_obstacles && factor.is_finite() {
-            Ok(plan.stretched(factor * (1.0 + 1e-6)))
-        } else {
-            Err(Why::Limits)
-        }
-    }
-
     /// Makes `candidate` the held plan (to the goals) and answers with it.
     fn adopt(&mut self, candidate: Candidate, mut answer: Answer) -> Answer {
         self.cold.cancel();
         self.pending = None;
         self.fresh = None;
-        self.held = Some(held(candidate, Kind::Goals, self.team.samples));
+        self.held = Some(Held::of(candidate, Kind::Goals, self.team.samples));
         answer.follow = Follow::New;
         answer.why = Why::None;
         answer
@@ -688,7 +378,7 @@ impl TeamPlanner {
         answer.follow = match fallback {
             Fallback::Held => Follow::Held,
             Fallback::Stop(candidate) => {
-                self.held = Some(held(*candidate, Kind::Stopping, self.team.samples));
+                self.held = Some(Held::of(*candidate, Kind::Stopping, self.team.samples));
                 Follow::Stopping
             }
             Fallback::Nothing => {
@@ -698,61 +388,14 @@ impl TeamPlanner {
         };
         answer
     }
-
-    /// A verified stopping plan from `world`'s state against its
-    /// obstacles, within the limits, made by `until`.
-    fn stopping(&self, world: &World, until: Instant, answer: &mut Answer) -> Option<Candidate> {
-        let _span = info_span!("stopping").entered();
-        let t = Instant::now();
-        let inset = self.team.robot.radius * AmSettings::safety_filter().margin;
-        let stop = stopping_problem(&world.problem, self.stops.team().horizon, inset);
-        stop.validate().ok()?;
-        let engine = self.stops.get(stop.obstacles.len())?;
-        let sample = self.stop_reference.coefficients(&stop);
-        let prepared = engine.prepare(&stop, Some(&sample)).ok()?;
-        let outcome = engine.run_within(&prepared, engine.cold_start(&prepared), &Budget::until(until));
-        answer.stages.filter += t.elapsed();
-        answer.iterations += outcome.iterations;
-        if outcome.stop != Stop::Verified {
-            return None;
-        }
-        let plan = self.within_limits(engine.plan(outcome.state.xi), &stop).ok()?;
-        let (origin_ns, sequence) = (world.origin_ns, world.sequence);
-        Some(Candidate { plan, problem: stop, origin_ns, sequence, primal: outcome.primal })
-    }
-}
-
-/// The held plan `candidate` becomes.
-fn held(candidate: Candidate, kind: Kind, samples: usize) -> Held {
-    let (max_speed, max_acceleration) = candidate.plan.peak_rates(DENSE_FACTOR * samples);
-    let smoothness = candidate.plan.smoothness(samples);
-    Held {
-        smoothness,
-        max_speed,
-        max_acceleration,
-        origin_ns: candidate.origin_ns,
-        sequence: candidate.sequence,
-        kind,
-        primal: candidate.primal,
-        goals: candidate.problem.goals,
-        plan: candidate.plan,
-    }
-}
-
-/// Adds the durations of `more` to `into`.
-fn add_stages(into: &mut Stages, more: &Stages) {
-    into.warm_start += more.warm_start;
-    into.sample += more.sample;
-    into.rank += more.rank;
-    into.init += more.init;
-    into.filter += more.filter;
-    into.optimise += more.optimise;
-    into.select += more.select;
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::config::TeamConfig;
+    use crate::preload::PreloadError;
+    use flowopt_planner::am::AmSettings;
     use flowopt_planner::metrics::Metrics;
     use flowopt_planner::problem::{Dim, Obstacle, Spheroid, StartState};
     use flowopt_planner::scenario::RandomScenario;
@@ -771,7 +414,7 @@ mod tests {
     /// cold planner, and a deadline long past (a result a cold thread
     /// finished meanwhile would otherwise be taken, rightly).
     fn answer_late(planner: &mut TeamPlanner, problem: &Problem, origin_ns: u64) -> Answer {
-        planner.cold = ColdPlanner::start("test", Vec::new(), Duration::ZERO);
+        planner.cold = Race::start("test", Vec::new(), None, || {});
         let long_ago = Instant::now() - Duration::from_secs(5);
         answer(planner, problem, origin_ns, long_ago)
     }
@@ -811,7 +454,7 @@ mod tests {
         team.name = name.into();
         team.deadline_ms = 10_000.0;
         let mut planner = TeamPlanner::preload(&team).unwrap();
-        assert_eq!(planner.cold.methods(), 2, "the learned pipeline races the optimiser");
+        assert_eq!(planner.cold.members(), 2, "the learned pipeline races the optimiser");
         let problem = RandomScenario::new(planner.team().clone()).generate(11).unwrap();
         let a = answer(&mut planner, &problem, 1_000_000_000, Instant::now());
         assert_eq!((a.follow, a.why, a.warm), (Follow::New, Why::None, false));
@@ -828,12 +471,15 @@ mod tests {
         three.robot = toml::from_str("radius = 0.1").unwrap();
         three.workspace = toml::from_str("min = [-1.0, -1.0, -1.0]\nmax = [1.0, 1.0, 1.0]").unwrap();
         let two_d = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/weights/flow.safetensors");
-        three.learned.as_mut().unwrap().flow = flowopt_models::shipped::WeightsRef::File(two_d);
-        assert!(matches!(TeamPlanner::preload(&three), Err(PreloadError::Model(_))));
+        three.planner.learned.flow = flowopt_models::shipped::WeightsRef::File(two_d);
+        three.planner.method = flowopt_methods::Method::Flowopt;
+        assert!(matches!(TeamPlanner::preload(&three), Err(PreloadError::Planner(_))));
+        // Under `auto` the optimiser plans alone.
+        three.planner.method = flowopt_methods::Method::Auto;
+        assert_eq!(TeamPlanner::preload(&three).unwrap().cold.members(), 1);
         // A weight file that is named but missing is an error.
         let mut missing = team.clone();
-        missing.learned.as_mut().unwrap().flow =
-            flowopt_models::shipped::WeightsRef::File("/no/such.safetensors".into());
+        missing.planner.learned.flow = flowopt_models::shipped::WeightsRef::File("/no/such.safetensors".into());
         let err = TeamPlanner::preload(&missing).unwrap_err().to_string();
         assert!(err.contains("/no/such.safetensors"), "{err}");
     }

@@ -18,7 +18,8 @@ use tracing::{debug, info, warn};
 
 use crate::config::DaemonConfig;
 use crate::lock::{LockError, TeamLock};
-use crate::planning::{PreloadError, TeamPlanner};
+use crate::planning::TeamPlanner;
+use crate::preload::PreloadError;
 use crate::worker::{self, Job};
 
 /// Errors that stop the daemon.

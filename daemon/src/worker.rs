@@ -16,9 +16,12 @@ use flowopt_client::{
 use tracing::{debug, info, info_span, warn};
 
 use crate::admission::Admission;
+use crate::answer::{Answer, Follow, Why};
 use crate::config::TeamConfig;
 use crate::convert::{Plausible, Rejection, check_header, measured};
-use crate::planning::{Answer, Follow, Held, Stages, TeamPlanner, Why};
+use crate::held::Held;
+use crate::planning::TeamPlanner;
+use flowopt_planner::method::Stages;
 
 /// A snapshot handed from the WaitSet thread to a worker.
 #[derive(Debug)]

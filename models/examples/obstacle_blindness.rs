@@ -60,13 +60,19 @@ fn main() -> anyhow::Result<()> {
     let [Ok(free), Ok(cluttered)] = filters else { anyhow::bail!("building the safety filters") };
     let coding = Coding::new(&team)?;
     let defaults = PipelineSettings::default();
-    let steps: usize = std::env::args().nth(4).map(|s| s.parse()).transpose()?.unwrap_or(defaults.obstacle_steps);
-    let settings =
-        PipelineSettings { top_k: 1, use_init: false, reroute: false, rounds: 1, obstacle_steps: steps, ..defaults };
+    let steps: usize = std::env::args().nth(4).map(|s| s.parse()).transpose()?.unwrap_or(defaults.obstacle_flow_steps);
+    let settings = PipelineSettings {
+        top_k: 1,
+        use_init: false,
+        reroute: false,
+        rounds: 1,
+        obstacle_flow_steps: steps,
+        ..defaults
+    };
     // The policy sees the obstacles or not; everything else is the same.
     let blind_settings = PipelineSettings {
         candidates: settings.obstacle_candidates,
-        steps: settings.obstacle_steps,
+        flow_steps: settings.obstacle_flow_steps,
         ..settings.clone()
     };
     let (mut straight, mut sampled) = ([0usize; 2], [0usize; 2]);

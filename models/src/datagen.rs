@@ -1,71 +1,24 @@
-//! `flowopt datagen`: solve seeded instances of a scene family with the
-//! from-scratch optimiser or the learned pipeline ([`DataSolver`]) on every
-//! core and keep the successful solutions as a [`crate::dataset`]. Shards
-//! are written atomically and skipped when present, so an interrupted run
+//! `flowopt datagen`: solve seeded instances of a scene family with a
+//! planner (the from-scratch optimiser or the learned pipeline, recorded as
+//! the configuration's [`DataSolver`]; the caller builds it) on every core
+//! and keep the successful solutions as a [`crate::dataset`]. Shards are
+//! written atomically and skipped when present, so an interrupted run
 //! resumes where it stopped.
 
 use std::collections::BTreeMap;
 use std::path::Path;
 
 use candle_core::{Device, Tensor};
-use flowopt_planner::am::{AmSettings, Budget, Engine, Objective};
+use std::sync::Mutex;
+
+use flowopt_planner::am::Budget;
+use flowopt_planner::method::Planner;
 use flowopt_planner::metrics::Metrics;
 use flowopt_planner::plan::JointPlan;
-use flowopt_planner::problem::{Problem, Team};
 
 use crate::ModelError;
 use crate::coding::{Coding, conditions, obstacle_width, robot_width};
 use crate::dataset::{DataSolver, DatagenConfig, FORMAT, MANIFEST, Manifest, ShardEntry, VERSION, hash_files};
-use crate::pipeline::{DEFAULT_SF_SMOOTHING, LearnedPlanner, PipelineSettings};
-use crate::shipped::Weights;
-
-/// What solves the instances, loaded.
-enum Solving {
-    /// The from-scratch optimiser.
-    Optimiser,
-    /// The learned pipeline with its default settings (so the initialiser
-    /// where there are obstacles only), one thread per instance.
-    Pipeline(Box<LearnedPlanner>),
-}
-
-impl Solving {
-    fn new(solver: &DataSolver) -> Result<Self, ModelError> {
-        Ok(match solver {
-            DataSolver::Optimiser => Solving::Optimiser,
-            DataSolver::Pipeline { flow, init } => {
-                let file = |path: &std::path::Path| Weights::File(path.to_path_buf());
-                let init = init.as_ref().map(|i| i.checked().map(file)).transpose()?;
-                let flow = file(flow.checked()?);
-                Solving::Pipeline(Box::new(LearnedPlanner::load(&flow, init.as_ref(), DEFAULT_SF_SMOOTHING)?))
-            }
-        })
-    }
-
-    /// The engine that plans (the optimiser) or repairs (the pipeline's
-    /// safety filter) for `team` with `obstacles` obstacles.
-    fn engine(&self, team: &Team, obstacles: usize) -> Result<Engine, ModelError> {
-        Ok(match self {
-            Solving::Optimiser => Engine::new(team, obstacles, Objective::smoothness(), AmSettings::optimiser())?,
-            Solving::Pipeline(p) => {
-                p.model().check(team)?;
-                Engine::new(team, obstacles, p.sf_objective(), AmSettings::safety_filter())?
-            }
-        })
-    }
-
-    /// The coefficients of `problem`'s plan (seeded by `seed`), or `None`
-    /// where the pipeline verified none.
-    fn solve(&self, engine: &Engine, problem: &Problem, seed: u64) -> Result<Option<Vec<f64>>, ModelError> {
-        match self {
-            Solving::Optimiser => Ok(Some(engine.solve(problem)?.state.xi)),
-            Solving::Pipeline(p) => {
-                let settings = PipelineSettings { threads: 1, obstacle_threads: 1, ..PipelineSettings::default() };
-                let out = p.model().plan(problem, engine, &settings, seed, &Budget::unlimited())?;
-                Ok(out.verified.then(|| out.xi().to_vec()))
-            }
-        }
-    }
-}
 
 /// One kept instance.
 struct Solved {
@@ -76,15 +29,27 @@ struct Solved {
     smoothness: f32,
 }
 
+/// Makes the planners that solve a dataset's instances (one per worker).
+pub type MakePlanner<'a> = dyn Fn() -> Result<Box<dyn Planner>, ModelError> + Sync + 'a;
+
 /// Generates (or completes) the dataset `config` describes in `dir` with
-/// `threads` worker threads; `progress` is told how many instances each
-/// finished shard attempted. Returns the manifest it wrote.
+/// `threads` worker threads, each planning with a planner `make` makes (the
+/// solver `config.solver` records); `progress` is told how many instances
+/// each finished shard attempted. Returns the manifest it wrote.
 pub fn generate(
     config: &DatagenConfig,
     dir: &Path,
     threads: usize,
+    make: &MakePlanner<'_>,
     mut progress: impl FnMut(usize),
 ) -> Result<Manifest, ModelError> {
+    // The weights the dataset records are the weights it is solved with.
+    if let DataSolver::Pipeline { flow, init } = &config.solver {
+        flow.checked()?;
+        if let Some(init) = init {
+            init.checked()?;
+        }
+    }
     std::fs::create_dir_all(dir).map_err(|e| ModelError::io(dir, e))?;
     let config_path = dir.join("datagen.json");
     if config_path.exists() {
@@ -100,7 +65,7 @@ pub fn generate(
     } else {
         write_json(&config_path, config)?;
     }
-    let solving = Solving::new(&config.solver)?;
+    let planners = (0..threads.max(1)).map(|_| make().map(Mutex::new)).collect::<Result<Vec<_>, _>>()?;
     let mut shards = Vec::new();
     for &robots in &config.robots {
         for obstacles in config.obstacle_counts(robots)? {
@@ -108,7 +73,6 @@ pub fn generate(
             // an instance in another one gets an engine of its own).
             let team = config.problem(robots, obstacles, config.seed(robots, obstacles, 0))?.team;
             let coding = Coding::new(&team)?;
-            let engine = solving.engine(&team, obstacles)?;
             for shard in 0..config.shards_per_bucket() {
                 let file = DatagenConfig::shard_name(robots, obstacles, shard);
                 let first = shard * config.shard_size;
@@ -118,8 +82,7 @@ pub fn generate(
                     count_kept(&path)?
                 } else {
                     let bucket = (robots, obstacles);
-                    let solved =
-                        solve_range(config, &solving, &engine, &coding, bucket, first..first + attempted, threads)?;
+                    let solved = solve_range(config, &planners, &coding, bucket, first..first + attempted)?;
                     write_shard(&path, config.dim, robots, obstacles, &solved)?;
                     solved.len()
                 };
@@ -141,18 +104,16 @@ pub fn generate(
     Ok(manifest)
 }
 
-/// Solves the instances `range` of a bucket on `threads` threads, keeping
-/// the successes in seed order.
+/// Solves the instances `range` of a bucket on as many threads as there
+/// are `planners`, keeping the successes in seed order.
 fn solve_range(
     config: &DatagenConfig,
-    solving: &Solving,
-    engine: &Engine,
+    planners: &[Mutex<Box<dyn Planner>>],
     coding: &Coding,
     (robots, obstacles): (usize, usize),
     range: std::ops::Range<usize>,
-    threads: usize,
 ) -> Result<Vec<Solved>, ModelError> {
-    crate::runtime::parallel(range.len(), threads, |j| {
+    crate::runtime::parallel(range.len(), planners.len(), |j| {
         let index = range.start + j;
         let seed = config.seed(robots, obstacles, index);
         // Instances too dense to place, or with another obstacle count,
@@ -161,14 +122,20 @@ fn solve_range(
         if problem.obstacles.len() != obstacles {
             return Ok(None);
         }
-        let own;
-        let engine = if problem.team == *engine.team() {
-            engine
-        } else {
-            own = solving.engine(&problem.team, obstacles)?;
-            &own
+        // As many jobs run at once as there are planners: one is free.
+        let mut planner = loop {
+            if let Some(free) = planners.iter().find_map(|p| p.try_lock().ok()) {
+                break free;
+            }
+            std::thread::yield_now();
         };
-        let Some(xi) = solving.solve(engine, &problem, seed)? else { return Ok(None) };
+        let planned =
+            planner.plan(&problem, &Budget::unlimited(), seed).map_err(|e| ModelError::Config(e.to_string()))?;
+        drop(planner);
+        if !planned.verified() {
+            return Ok(None);
+        }
+        let xi = planned.plan.coeffs;
         let metrics = Metrics::measure(&problem, &JointPlan::new(&problem.team, xi.clone()));
         if !metrics.success(problem.team.separation().0) {
             return Ok(None);
@@ -220,8 +187,15 @@ pub(crate) fn write_json(path: &Path, value: &impl serde::Serialize) -> Result<(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::dataset::Dataset;
+    use crate::dataset::{DataSolver, Dataset};
+    use flowopt_planner::am::AmSettings;
+    use flowopt_planner::optimiser::Optimiser;
     use flowopt_planner::scenes::Family;
+
+    /// The from-scratch optimiser, as `DataSolver::Optimiser` records.
+    fn optimiser() -> Result<Box<dyn Planner>, ModelError> {
+        Ok(Box::new(Optimiser::new(AmSettings::optimiser())))
+    }
 
     #[test]
     fn a_tiny_dataset_round_trips_and_resumes() {
@@ -239,7 +213,7 @@ mod tests {
             solver: DataSolver::Optimiser,
         };
         let mut attempted = 0;
-        let manifest = generate(&config, &dir, 2, |n| attempted += n).unwrap();
+        let manifest = generate(&config, &dir, 2, &optimiser, |n| attempted += n).unwrap();
         assert_eq!((attempted, manifest.attempted, manifest.shards.len()), (6, 6, 4));
         assert!(manifest.kept >= 5, "3 robots almost always succeed: kept {}", manifest.kept);
         let data = Dataset::load(&dir).unwrap();
@@ -253,11 +227,11 @@ mod tests {
         let rows = bucket.robot_rows.get(0).unwrap().flatten_all().unwrap().to_vec1::<f32>().unwrap();
         assert_eq!(rows, conditions(&problem).0);
         // A second run finds every shard and rewrites the same manifest.
-        let again = generate(&config, &dir, 1, |_| {}).unwrap();
+        let again = generate(&config, &dir, 1, &optimiser, |_| {}).unwrap();
         assert_eq!(again.sha256, manifest.sha256);
         // Another configuration in the same directory is refused.
         let other = DatagenConfig { per_bucket: 4, ..config };
-        assert!(matches!(generate(&other, &dir, 1, |_| {}), Err(ModelError::Config(_))));
+        assert!(matches!(generate(&other, &dir, 1, &optimiser, |_| {}), Err(ModelError::Config(_))));
         std::fs::remove_dir_all(&dir).unwrap();
     }
 
@@ -279,7 +253,7 @@ mod tests {
                 first_seed: 1_000_000_000,
                 solver: DataSolver::Optimiser,
             };
-            let manifest = generate(&config, &dir, 1, |_| {}).unwrap();
+            let manifest = generate(&config, &dir, 1, &optimiser, |_| {}).unwrap();
             assert_eq!(manifest.shards.len(), 1, "{family:?}: one bucket; the family places its own obstacles");
             assert_eq!(manifest.kept, 2, "{family:?}: the optimiser solves 8-robot scenes");
             let data = Dataset::load(&dir).unwrap();

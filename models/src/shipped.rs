@@ -18,7 +18,7 @@ use std::fmt;
 use std::path::{Path, PathBuf};
 
 use flowopt_planner::problem::Dim;
-use serde::{Deserialize, Deserializer};
+use serde::{Deserialize, Deserializer, Serialize, Serializer};
 
 use crate::ModelError;
 
@@ -131,6 +131,15 @@ impl WeightsRef {
         match self {
             WeightsRef::Shipped => shipped(dim),
             WeightsRef::File(path) => Weights::File(path.clone()),
+        }
+    }
+}
+
+impl Serialize for WeightsRef {
+    fn serialize<S: Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        match self {
+            WeightsRef::Shipped => serializer.serialize_str(SHIPPED),
+            WeightsRef::File(path) => serializer.serialize_str(&path.to_string_lossy()),
         }
     }
 }

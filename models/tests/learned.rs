@@ -3,6 +3,7 @@
 //! pipeline. No real model is trained here.
 
 use std::path::{Path, PathBuf};
+use std::time::Duration;
 
 use flowopt_models::ModelError;
 use flowopt_models::coding::Coding;
@@ -10,11 +11,15 @@ use flowopt_models::datagen::generate;
 use flowopt_models::dataset::{DataSolver, DatagenConfig, Dataset, WeightFile};
 use flowopt_models::flow::FlowConfig;
 use flowopt_models::init::InitConfig;
-use flowopt_models::pipeline::{DEFAULT_SF_SMOOTHING, FlowOpt, PipelineSettings, Settle};
+use flowopt_models::pipeline::{
+    DEFAULT_SF_SMOOTHING, FlowOpt, LearnedPipeline, LearnedPlanner, PipelineSettings, Settle,
+};
 use flowopt_models::shipped::Weights;
 use flowopt_models::train::{FlowStart, InitData, TrainConfig, train_flow, train_init};
 use flowopt_planner::am::{AmSettings, AmState, Budget, Engine, Objective, Stop};
+use flowopt_planner::method::Planner;
 use flowopt_planner::metrics::Metrics;
+use flowopt_planner::optimiser::Optimiser;
 use flowopt_planner::plan::JointPlan;
 use flowopt_planner::problem::Problem;
 use flowopt_planner::scenes::Family;
@@ -37,8 +42,13 @@ fn tiny_data(dir: &Path) -> (DatagenConfig, Vec<(PathBuf, Dataset)>) {
         first_seed: 1_000_000_000,
         solver: DataSolver::Optimiser,
     };
-    generate(&config, dir, 2, |_| {}).unwrap();
+    generate(&config, dir, 2, &optimiser, |_| {}).unwrap();
     (config, vec![(dir.to_path_buf(), Dataset::load(dir).unwrap())])
+}
+
+/// The optimiser with its defaults, as `datagen` solves with it.
+fn optimiser() -> Result<Box<dyn Planner>, ModelError> {
+    Ok(Box::new(Optimiser::new(AmSettings::optimiser())))
 }
 
 fn train_config(steps: usize) -> TrainConfig {
@@ -118,7 +128,7 @@ fn tiny_networks_learn_and_the_pipeline_plans_with_them() {
     let settings = PipelineSettings {
         candidates: 5,
         obstacle_candidates: 6,
-        obstacle_steps: 2,
+        obstacle_flow_steps: 2,
         top_k: 3,
         settle: Settle::Smoothest,
         ..PipelineSettings::default()
@@ -144,7 +154,7 @@ fn tiny_networks_learn_and_the_pipeline_plans_with_them() {
     let m = Metrics::measure(&problem, &JointPlan::new(&team, out.xi().to_vec()));
     assert!(m.boundary_error < 1e-6, "every plan meets the boundary conditions: {}", m.boundary_error);
     assert_eq!(out.verified, m.success(team.separation().0), "a verified plan passes the success verdict");
-    assert!(out.times.total_ms >= out.times.sample_ms + out.times.filter_ms);
+    assert!(out.stages.sample > Duration::ZERO && out.stages.filter > Duration::ZERO, "{:?}", out.stages);
     // Same seed, same plan; another seed, other samples.
     let again = planner.plan(&problem, &sf, &settings, 1, &Budget::unlimited()).unwrap();
     assert_eq!(again.xi(), out.xi());
@@ -201,7 +211,17 @@ fn tiny_networks_learn_and_the_pipeline_plans_with_them() {
         },
         ..config.clone()
     };
-    let manifest = generate(&piped, &dir.join("piped"), 2, |_| {}).unwrap();
+    let learned = || -> Result<Box<dyn Planner>, ModelError> {
+        let settings =
+            PipelineSettings { threads: 1, obstacle_threads: 1, use_init: true, ..PipelineSettings::default() };
+        let planner = LearnedPlanner::load(
+            &Weights::File(flow_path.clone()),
+            Some(&Weights::File(init_path.clone())),
+            DEFAULT_SF_SMOOTHING,
+        )?;
+        Ok(Box::new(LearnedPipeline::new(planner, settings, AmSettings::safety_filter())))
+    };
+    let manifest = generate(&piped, &dir.join("piped"), 2, &learned, |_| {}).unwrap();
     assert!(manifest.kept > 0, "the pipeline verifies 4-robot instances");
     let solved = Dataset::load(&dir.join("piped")).unwrap();
     let bucket = solved.buckets.iter().find(|b| !b.is_empty()).unwrap();
@@ -221,7 +241,7 @@ fn tiny_networks_learn_and_the_pipeline_plans_with_them() {
         flow: WeightFile { path: init_path.clone(), ..WeightFile::hashed(&flow_path).unwrap() },
         init: None,
     };
-    let refused = generate(&DatagenConfig { solver: changed, ..piped }, &dir.join("changed"), 1, |_| {});
+    let refused = generate(&DatagenConfig { solver: changed, ..piped }, &dir.join("changed"), 1, &learned, |_| {});
     assert!(matches!(refused, Err(ModelError::Config(_))), "{refused:?}");
 
     std::fs::remove_dir_all(&dir).unwrap();
@@ -256,8 +276,8 @@ fn an_untrained_initialiser_is_the_plain_start() {
     let sf = Engine::new(&team, 0, Objective::Projection, AmSettings::safety_filter()).unwrap();
     let with = PipelineSettings {
         candidates: 4,
-        steps: 1,
-        obstacle_steps: 1,
+        flow_steps: 1,
+        obstacle_flow_steps: 1,
         top_k: 2,
         init_without_obstacles: true,
         ..PipelineSettings::default()

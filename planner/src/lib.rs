@@ -10,6 +10,9 @@
 //! - [`linalg`]: the dense products they run on;
 //! - [`am`]: the alternating-minimisation engine, used as the safety filter
 //!   and as the from-scratch optimiser;
+//! - [`method`]: the one planner interface ([`method::Planner`]: a problem
+//!   within a budget), its outcome and stage times;
+//! - [`optimiser`]: the from-scratch optimiser as a planner;
 //! - [`route`]: obstacle-aware cold starts for the optimiser;
 //! - [`reference`]: the smoothest curves through the boundary values;
 //! - [`plan`]: a joint plan, its evaluation, its warm-start shift and time
@@ -24,7 +27,9 @@ pub mod am;
 pub mod basis;
 pub mod kkt;
 pub mod linalg;
+pub mod method;
 pub mod metrics;
+pub mod optimiser;
 pub mod plan;
 pub mod problem;
 pub mod reference;

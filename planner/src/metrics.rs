@@ -5,8 +5,10 @@
 //! - arc length: mean over robots of `sum_k ||p_i(t_{k+1}) - p_i(t_k)||` (m);
 //! - clearances on a dense re-sampling ([`DENSE_FACTOR`] x K instants): the
 //!   smallest scaled distance between robots and between robots and
-//!   obstacles (1 = touching), and the matching surface gaps in metres
-//!   (`(scaled - 1) x separation`, exact for discs and spheres);
+//!   obstacles (1 = touching; a moving obstacle while its motion is
+//!   predicted, [`crate::problem::Team::obstacle_prediction`]), and the
+//!   matching surface gaps in metres (`(scaled - 1) x separation`, exact
+//!   for discs and spheres);
 //! - boundary error: worst mismatch of position, velocity and acceleration
 //!   at the start and at the goal;
 //! - [`Metrics::success`]: every clearance within
@@ -93,7 +95,7 @@ impl Metrics {
                 for j in i + 1..n {
                     min_robot_scaled = min_robot_scaled.min(scaled_norm(dim, &(p[i] - p[j]), a, b));
                 }
-                for o in &problem.obstacles {
+                for o in problem.obstacles.iter().filter(|o| t <= team.predicted_until(&o.velocity)) {
                     let (ao, bo) = team.obstacle_separation(&o.shape);
                     let scaled = scaled_norm(dim, &(p[i] - o.at(t)), ao, bo);
                     min_obstacle_scaled = min_obstacle_scaled.min(scaled);

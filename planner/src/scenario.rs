@@ -379,7 +379,16 @@ pub fn file_team(
     degree: usize,
     samples: usize,
 ) -> Result<Team, ScenarioError> {
-    Ok(Team { dim, robots, robot: robot.spheroid(), workspace: workspace.workspace(dim)?, horizon, degree, samples })
+    Ok(Team {
+        dim,
+        robots,
+        robot: robot.spheroid(),
+        workspace: workspace.workspace(dim)?,
+        horizon,
+        degree,
+        samples,
+        obstacle_prediction: None,
+    })
 }
 
 impl ScenarioFile {

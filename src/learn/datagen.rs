@@ -6,12 +6,17 @@ use std::time::Instant;
 
 use anyhow::{Context, Result};
 use clap::{Args, ValueEnum};
+use flowopt_methods::build::learned;
+use flowopt_methods::{Method, PlannerSettings};
+use flowopt_models::ModelError;
 use flowopt_models::datagen::generate;
 use flowopt_models::dataset::{DataSolver, DatagenConfig, WeightFile};
+use flowopt_models::shipped::{Weights, WeightsRef};
+use flowopt_planner::method::Planner;
+use flowopt_planner::optimiser::Optimiser;
 use indicatif::{ProgressBar, ProgressStyle};
 
 use crate::offline::instances::FamilyArg;
-use crate::offline::methods::shipped_weights;
 
 /// Generate a training dataset of verified solutions (resumable).
 #[derive(Debug, Args)]
@@ -83,8 +88,9 @@ pub fn run(args: DatagenArgs) -> Result<()> {
         first_seed: args.first_seed,
         solver: DataSolver::Optimiser,
     };
+    let dim = config.dimension()?;
     if args.solver == SolverArg::Pipeline {
-        let (flow, init) = shipped_weights(config.dimension()?);
+        let (flow, init) = (Weights::shipped_flow(dim).file(), Weights::shipped_init(dim).file());
         let hashed = |path: PathBuf| WeightFile::hashed(&path).with_context(|| format!("reading {}", path.display()));
         config.solver = DataSolver::Pipeline {
             flow: hashed(args.flow_weights.unwrap_or(flow))?,
@@ -99,7 +105,9 @@ pub fn run(args: DatagenArgs) -> Result<()> {
     let progress = ProgressBar::new(total as u64);
     progress.set_style(ProgressStyle::with_template("{bar:40} {pos}/{len} instances [{elapsed_precise} eta {eta}]")?);
     let started = Instant::now();
-    let manifest = generate(&config, &args.out, args.threads, |n| progress.inc(n as u64))
+    let solver = config.solver.clone();
+    let make = move || -> Result<Box<dyn Planner>, ModelError> { solver_for(&solver, dim) };
+    let manifest = generate(&config, &args.out, args.threads, &make, |n| progress.inc(n as u64))
         .with_context(|| format!("generating the dataset in {}", args.out.display()))?;
     progress.finish_and_clear();
     println!(
@@ -111,4 +119,24 @@ pub fn run(args: DatagenArgs) -> Result<()> {
         manifest.sha256
     );
     Ok(())
+}
+
+/// A planner of the solver `solver` records, for teams of `dim`: the
+/// optimiser with its defaults, or the learned pipeline as `flowopt`
+/// plans (the recorded weights, the initialiser where there are obstacles)
+/// on one thread per instance.
+fn solver_for(solver: &DataSolver, dim: flowopt_planner::problem::Dim) -> Result<Box<dyn Planner>, ModelError> {
+    let settings = PlannerSettings::default();
+    Ok(match solver {
+        DataSolver::Optimiser => Box::new(Optimiser::new(settings.optimiser)),
+        DataSolver::Pipeline { flow, init } => {
+            let mut settings = settings;
+            settings.learned.flow = WeightsRef::File(flow.checked()?.to_path_buf());
+            settings.learned.init =
+                init.as_ref().map(|i| i.checked().map(|p| WeightsRef::File(p.to_path_buf()))).transpose()?;
+            settings.learned.threads = 1;
+            settings.learned.obstacle_threads = 1;
+            Box::new(learned(&settings, Method::Flowopt, dim)?)
+        }
+    })
 }

@@ -177,8 +177,17 @@ struct InitArgs {
     /// Smoothing weight of the unrolled SF's metric (0: the plain
     /// projection, as the shipped initialiser; 3, the pipeline's metric,
     /// measured on par with it: docs/LEARNED.md).
-    #[arg(long, default_value_t = 0.0, value_parser = crate::offline::methods::smoothing_weight)]
+    #[arg(long, default_value_t = 0.0, value_parser = smoothing_weight)]
     sf_smoothing: f64,
+}
+
+/// Parses a safety-filter smoothing weight: a finite number, 0 or more.
+fn smoothing_weight(text: &str) -> Result<f64, String> {
+    match text.parse::<f64>() {
+        Ok(w) if w.is_finite() && w >= 0.0 => Ok(w),
+        Ok(_) => Err(format!("{text} is not a weight: give a finite number, 0 or more")),
+        Err(e) => Err(format!("{text}: {e}")),
+    }
 }
 
 /// Runs `flowopt train`.

@@ -59,7 +59,7 @@ pub fn run(args: BenchIpcArgs) -> Result<()> {
     let channel = TeamChannel::new(&prefix, TEAM)?;
     let endpoint = Endpoint::new("flowopt-bench-ipc")?;
     let mut states = endpoint.state_publisher(&channel)?;
-    let mut plans = endpoint.plan_subscriber(&channel)?;
+    let mut plans = endpoint.plan_subscriber(&channel, &states)?;
     let exe = std::env::current_exe()?;
     let mut peer = Command::new(exe)
         .args(["bench-ipc", "--echo", &prefix])

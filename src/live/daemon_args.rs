@@ -93,8 +93,9 @@ mod tests {
         let shipped = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/config/default.toml")).unwrap();
         assert_eq!(DEFAULT_CONFIG, shipped);
         let config: DaemonConfig = toml::from_str(DEFAULT_CONFIG).unwrap();
-        let learned = config.teams[0].learned.as_ref().expect("the learned planner");
-        assert_eq!(learned.flow, flowopt_models::shipped::WeightsRef::Shipped);
+        let planner = &config.teams[0].planner;
+        assert_eq!(planner.learned.flow, flowopt_models::shipped::WeightsRef::Shipped);
+        assert_eq!(planner.method, flowopt_methods::Method::Auto);
     }
 
     #[test]

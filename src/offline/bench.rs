@@ -9,26 +9,30 @@ use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use serde::Serialize;
 
+use flowopt_methods::Method;
+use flowopt_models::pipeline::Query;
+use flowopt_planner::am::Budget;
+
+use crate::offline::harness::{Harness, Record, StageMs, plan_distance};
 use crate::offline::instances::InstanceArgs;
-use crate::offline::methods::{LearnedArgs, Method, Planner, Record, plan_distance};
-use crate::offline::solve::EngineArgs;
+use crate::offline::planning_args::PlanningArgs;
 use crate::offline::stats::{IterationStats, mean, quantile};
 
 /// Benchmark a planning method on seeded scenes of a family.
 #[derive(Debug, Args)]
 pub struct BenchArgs {
-    /// Planning method.
-    #[arg(long, value_enum, default_value = "auto")]
-    method: Method,
+    #[command(flatten)]
+    planning: PlanningArgs,
     #[command(flatten)]
     instance: InstanceArgs,
     /// Number of instances (seeds seed..seed+problems).
     #[arg(long, default_value_t = 100)]
     problems: u64,
-    #[command(flatten)]
-    engine: EngineArgs,
-    #[command(flatten)]
-    learned: LearnedArgs,
+    /// Skip the untimed residual study (the iterations to 0.01 / 0.001 m
+    /// are then not reported): it runs up to 10,000 iterations, which is
+    /// most of the time a big team's benchmark takes.
+    #[arg(long)]
+    no_study: bool,
     /// Learned methods: also plan every instance with this many noise seeds
     /// (untimed) and report the mean pairwise distance between the verified
     /// plans (diversity).
@@ -100,7 +104,9 @@ struct InstanceLine<'a> {
 
 /// Runs `flowopt bench`.
 pub fn run(args: BenchArgs) -> Result<()> {
-    let mut planner = Planner::new(args.engine.overrides(), Some(args.learned.clone()));
+    let settings = args.planning.settings()?;
+    let method = settings.method;
+    let mut harness = Harness::new(settings, args.no_study);
     let mut distances = Vec::new();
     let mut out = match &args.per_instance {
         Some(path) => Some(std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?),
@@ -117,11 +123,15 @@ pub fn run(args: BenchArgs) -> Result<()> {
             first = Some((problem.team.clone(), problem.obstacles.len(), params));
         }
         let seed = args.instance.seed + index;
-        let record = planner.run(args.method, &problem, seed)?;
-        if args.diversity > 1 && matches!(args.method, Method::Flowopt | Method::FlowNoInit) {
+        let record = harness.run(method, &problem, seed)?;
+        if args.diversity > 1 && matches!(method, Method::Flowopt | Method::FlowNoInit) {
             let mut plans = Vec::new();
+            let pipeline = harness.pipeline(method, problem.team.dim)?;
             for k in 0..args.diversity as u64 {
-                let (out, _) = planner.plan_learned(args.method, &problem, 0, seed + 1_000_003 * (k + 1))?;
+                let query = Query::from(&problem);
+                let noise = seed + 1_000_003 * (k + 1);
+                let mut outs = pipeline.plan_batch(&[query], &Budget::unlimited(), noise)?;
+                let out = outs.pop().context("the pipeline returned no plan")?;
                 if out.verified {
                     plans.push(out.xi().to_vec());
                 }
@@ -148,7 +158,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
     let to_0_01 = IterationStats::of(records.iter().map(|r| r.iterations_to_0_01));
     let to_0_001 = IterationStats::of(records.iter().map(|r| r.iterations_to_0_001));
     let summary = Summary {
-        method: args.method,
+        method,
         family: scene.as_ref().map_or("scenario-file".into(), |p| p.family.name().to_string()),
         robots: team.robots,
         dim: team.dim.axes(),
@@ -213,9 +223,7 @@ fn stage_medians(records: &[Record]) -> Option<serde_json::Value> {
     if stages.is_empty() {
         return None;
     }
-    let median = |f: &dyn Fn(&flowopt_models::pipeline::PipelineTimes) -> f64| {
-        quantile(&stages.iter().map(f).collect::<Vec<_>>(), 0.5)
-    };
+    let median = |f: &dyn Fn(&StageMs) -> f64| quantile(&stages.iter().map(f).collect::<Vec<_>>(), 0.5);
     Some(serde_json::json!({
         "sample": median(&|s| s.sample_ms),
         "rank": median(&|s| s.rank_ms),

@@ -19,7 +19,7 @@ what the contract says::
     endpoint = Endpoint("my-controller")
     channel = TeamChannel("flowopt", "default")
     states = endpoint.state_publisher(channel)
-    plans = endpoint.plan_subscriber(channel)
+    plans = endpoint.plan_subscriber(channel, states)
 
     def fill(snapshot):
         snapshot.dim, snapshot.robots = 2, 16
@@ -53,7 +53,7 @@ from .messages import (
     robot_array,
     write_team,
 )
-from .plan import Followed, Follower, Kinematics, MessageError, Plan, Trajectory, bernstein_rows
+from .plan import Followed, Follower, Kinematics, MessageError, Plan, Sent, Trajectory, bernstein_rows
 from .ports import Endpoint, PlanSubscriber, StatePublisher, TeamChannel, monotonic_ns
 
 __all__ = [
@@ -65,6 +65,7 @@ __all__ = [
     "Endpoint",
     "Followed",
     "Follower",
+    "Sent",
     "JointTrajectory",
     "Kinematics",
     "MessageError",

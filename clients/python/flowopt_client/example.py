@@ -235,7 +235,8 @@ def run(args: argparse.Namespace, spec: TeamSpec, prefix: str) -> dict:
     """Flies the team for ``args.seconds`` and returns the summary."""
     endpoint = Endpoint(f"flowopt-py-example-{args.seed}")
     channel = TeamChannel(prefix, spec.name)
-    states, plans = endpoint.state_publisher(channel), endpoint.plan_subscriber(channel)
+    states = endpoint.state_publisher(channel)
+    plans = endpoint.plan_subscriber(channel, states)
     team, tally = SimulatedTeam(spec, args.seed), Tally()
     lo, hi = np.array(spec.workspace_min), np.array(spec.workspace_max)
     sent_ns: dict[int, int] = {}

@@ -14,6 +14,7 @@ followability contract (``docs/MESSAGES.md``) on the controller's side.
 
 from __future__ import annotations
 
+import collections
 import dataclasses
 from math import comb
 from typing import NamedTuple
@@ -222,31 +223,55 @@ class Followed:
         return self.trajectory.at_ns(now_ns)
 
 
+SENT_REMEMBERED = 1024
+"""Snapshots a controller remembers having published (at 1 kHz, the last second)."""
+
+
+class Sent:
+    """The snapshots a controller published most recently, by sequence and
+    timestamp: its ``StatePublisher`` records them, its ``Follower`` reads
+    them to recognise the answers to them."""
+
+    def __init__(self) -> None:
+        """Nothing published yet."""
+        self._sent: collections.deque[tuple[int, int]] = collections.deque(maxlen=SENT_REMEMBERED)
+
+    def record(self, sequence: int, timestamp_ns: int) -> None:
+        """Remembers a published snapshot (forgetting the oldest beyond ``SENT_REMEMBERED``)."""
+        self._sent.append((sequence, timestamp_ns))
+
+    def __contains__(self, snapshot: tuple[int, int]) -> bool:
+        """Whether ``(sequence, timestamp_ns)`` is one of the remembered snapshots."""
+        return snapshot in self._sent
+
+
 class Follower:
     """The followability contract: which verified trajectory to follow now.
 
-    The newest message taken decides: a followable one (``Ok``, ``Held``,
-    ``Stopping``) replaces the trajectory, evaluated against its own
-    ``plan_origin_ns``; ``NoPlan``, or a message that cannot be read, leaves
-    none (bring the robots to rest by your own means). Messages answering
-    snapshots measured before ``since_ns`` (the last message a service keeps
-    for late joiners) change nothing.
+    Only answers to the controller's own snapshots count (their
+    ``answers_sequence`` and ``state_timestamp_ns`` are those of a snapshot
+    in ``sent``): never an answer to another process's snapshot, nor the
+    message a service keeps for late joiners. Among those the newest
+    decides: a followable one (``Ok``, ``Held``, ``Stopping``) replaces the
+    trajectory, evaluated against its own ``plan_origin_ns``; ``NoPlan``, or
+    a message that cannot be read, leaves none (bring the robots to rest by
+    your own means). Without ``sent`` (a watcher) nothing is ever followed.
     """
 
-    def __init__(self, since_ns: int = 0):
-        """Nothing to follow yet; answers to snapshots older than ``since_ns`` are ignored."""
-        self.since_ns = since_ns
+    def __init__(self, sent: Sent | None = None):
+        """Nothing to follow yet; answers to the snapshots in ``sent`` count."""
+        self.sent = sent
         self._current: Followed | None = None
 
     def take(self, msg: JointTrajectory | Plan) -> Plan:
         """Takes the newest message and returns it as a ``Plan``.
 
-        A followable message becomes the trajectory to follow, any other
-        leaves none. A message that cannot be read leaves none too, and its
-        ``MessageError`` is raised. A message answering a snapshot older
-        than ``since_ns`` changes nothing.
+        An answer to another snapshot than the controller's own changes
+        nothing. Otherwise a followable message becomes the trajectory to
+        follow and any other leaves none; a message that cannot be read
+        leaves none too, and its ``MessageError`` is raised.
         """
-        if msg.state_timestamp_ns < self.since_ns:
+        if self.sent is None or (msg.answers_sequence, msg.state_timestamp_ns) not in self.sent:
             return msg if isinstance(msg, Plan) else Plan.from_message(msg)
         self._current = None
         plan = msg if isinstance(msg, Plan) else Plan.from_message(msg)

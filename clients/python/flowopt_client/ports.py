@@ -18,7 +18,7 @@ from collections.abc import Callable
 import iceoryx2 as iox2
 
 from .messages import WIRE_VERSION, JointTrajectory, StateSnapshot, check_team_name, write_team
-from .plan import Followed, Follower, MessageError, Plan
+from .plan import Followed, Follower, MessageError, Plan, Sent
 
 #: Publishers the state service admits: one state source per team (a
 #: second live controller cannot publish).
@@ -130,12 +130,20 @@ class Endpoint:
         notifier = self.event(channel.state_ready).notifier_builder().create()
         return StatePublisher(publisher, notifier, channel.team)
 
-    def plan_subscriber(self, channel: TeamChannel) -> PlanSubscriber:
+    def plan_subscriber(self, channel: TeamChannel, states: StatePublisher) -> PlanSubscriber:
         """Receives the newest plan of ``channel``'s team and keeps the
-        trajectory to follow, from answers to snapshots measured from now on."""
+        trajectory to follow, from answers to the snapshots ``states``
+        publishes only (never another process's)."""
         subscriber = self.topic(channel.plan, JointTrajectory).subscriber_builder().buffer_size(1).create()
         listener = self.event(channel.plan_ready).listener_builder().create()
-        return PlanSubscriber(subscriber, listener, Follower(since_ns=monotonic_ns()))
+        return PlanSubscriber(subscriber, listener, Follower(states.sent))
+
+    def plan_watcher(self, channel: TeamChannel) -> PlanSubscriber:
+        """Receives the newest plan of ``channel``'s team, for a process that
+        only watches (a viewer, a logger): it never has a trajectory to follow."""
+        subscriber = self.topic(channel.plan, JointTrajectory).subscriber_builder().buffer_size(1).create()
+        listener = self.event(channel.plan_ready).listener_builder().create()
+        return PlanSubscriber(subscriber, listener, Follower())
 
 
 class StatePublisher:
@@ -147,6 +155,7 @@ class StatePublisher:
         self._notifier = notifier
         self.team = team
         self.next_sequence = 1
+        self.sent = Sent()
 
     def publish_with(self, fill: Callable[[StateSnapshot], None]) -> int:
         """Publishes a snapshot written in place by ``fill`` and wakes the daemon.
@@ -166,7 +175,9 @@ class StatePublisher:
         snapshot.sequence = sequence
         snapshot.timestamp_ns = monotonic_ns()
         fill(snapshot)
+        stamped = (snapshot.sequence, snapshot.timestamp_ns)
         uninit.assume_init().send()
+        self.sent.record(*stamped)
         self._notifier.notify()
         self.next_sequence += 1
         return sequence
@@ -187,8 +198,8 @@ class PlanSubscriber:
         """The newest plan not yet taken (older ones are dropped), or ``None``.
 
         It also becomes the trajectory to follow (``to_follow``). A message
-        answering a snapshot measured before this subscriber was made is
-        returned but changes nothing; one that cannot be read (a status,
+        answering another snapshot than this controller's own is returned
+        but changes nothing; one that cannot be read (a status,
         reason or shape no daemon writes) leaves nothing to follow and is
         returned as ``None``.
         """

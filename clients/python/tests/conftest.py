@@ -123,7 +123,7 @@ class Controller:
         self.spec, self.channel = daemon.spec, daemon.channel
         self.endpoint = Endpoint(f"flowopt-pytest-{os.getpid()}")
         self.states = self.endpoint.state_publisher(daemon.channel)
-        self.plans = self.endpoint.plan_subscriber(daemon.channel)
+        self.plans = self.endpoint.plan_subscriber(daemon.channel, self.states)
         self.starts = self.spec.cells()
         self.goals = self.starts[::-1].copy()
 

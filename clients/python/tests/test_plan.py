@@ -16,10 +16,12 @@ from flowopt_client import (
     Plan,
     PlanStatus,
     Reason,
+    Sent,
     bernstein_rows,
     coeff_array,
     write_team,
 )
+from flowopt_client.plan import SENT_REMEMBERED
 
 #: Times (s) around a 5 s horizon: before the origin, inside, at and past the end.
 TIMES = [-1.0, 0.0, 1e-4, 0.37, 1.25, 2.5, 4.999, 5.0, 7.5]
@@ -134,8 +136,15 @@ def test_bernstein_rows_are_a_partition_of_unity_with_matching_derivatives():
     assert not bernstein_rows(2, 3, tau).any()
 
 
+def controller() -> Follower:
+    """A controller's follower that published the snapshot ``synthetic`` answers."""
+    sent = Sent()
+    sent.record(41, 10**12 + 5)
+    return Follower(sent)
+
+
 def test_followable_messages_replace_the_trajectory_and_others_leave_none():
-    follower = Follower()
+    follower = controller()
     assert follower.current is None
     for status in (PlanStatus.OK, PlanStatus.HELD, PlanStatus.STOPPING):
         msg = synthetic(2, 3, 10, seed=int(status), status=status)
@@ -156,17 +165,30 @@ def test_followable_messages_replace_the_trajectory_and_others_leave_none():
     assert follower.current is None, "an unreadable message leaves nothing to follow"
 
 
-def test_a_follower_ignores_answers_from_before_its_time():
-    follower = Follower(since_ns=10**12 + 6)
-    old = synthetic(2, 3, 10, seed=2)  # answers a snapshot of 10**12 + 5
-    follower.take(old)
-    assert follower.current is None, "the message a service kept for late joiners"
-    new = synthetic(2, 3, 10, seed=2, status=PlanStatus.HELD)
-    new.state_timestamp_ns = 10**12 + 6
-    follower.take(new)
+def test_only_answers_to_the_controllers_own_snapshots_are_followed():
+    follower = controller()
+    for sequence, timestamp in ((41, 10**12 + 6), (40, 10**12 + 5)):
+        other = synthetic(2, 3, 10, seed=2)
+        other.answers_sequence, other.state_timestamp_ns = sequence, timestamp
+        follower.take(other)
+        assert follower.current is None, f"an answer to another snapshot ({sequence}, {timestamp})"
+    follower.take(synthetic(2, 3, 10, seed=2, status=PlanStatus.HELD))
     assert follower.current.status is PlanStatus.HELD
-    follower.take(old)
-    assert follower.current is not None, "an older message changes nothing"
+    other = synthetic(2, 3, 10, seed=2, status=PlanStatus.NO_PLAN)
+    other.answers_sequence = 40
+    follower.take(other)
+    assert follower.current is not None, "someone else's NoPlan changes nothing"
+    watcher = Follower()
+    watcher.take(synthetic(2, 3, 10, seed=2))
+    assert watcher.current is None, "a watcher follows nothing"
+
+
+def test_a_controller_remembers_its_last_snapshots():
+    sent = Sent()
+    for k in range(SENT_REMEMBERED + 1):
+        sent.record(k, 1000 + k)
+    assert (0, 1000) not in sent
+    assert (1, 1001) in sent and (SENT_REMEMBERED, 1000 + SENT_REMEMBERED) in sent
 
 
 @pytest.mark.parametrize(

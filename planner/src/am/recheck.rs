@@ -153,6 +153,24 @@ mod tests {
     }
 
     #[test]
+    fn a_moving_obstacle_is_kept_clear_of_only_while_its_motion_is_predicted() {
+        let (team, plan) = crossing();
+        // From t = 1 s it walks down and crosses the robot's path 1.5 s later.
+        let walker = [ball(0.0, 0.75, 0.0, -0.5)];
+        let within = |prediction: Option<f64>| {
+            let team = Team { obstacle_prediction: prediction, ..team.clone() };
+            Recheck::new(&team, &AmSettings::safety_filter()).clear(&plan, 1.0, 4.0, &walker)
+        };
+        assert!(!within(None), "predicted over the whole plan");
+        assert!(!within(Some(2.0)), "predicted for 2 s: the meeting 1.5 s ahead");
+        assert!(within(Some(1.0)), "predicted for 1 s: the meeting is beyond it");
+        // A static obstacle is kept clear of over the whole plan.
+        let team = Team { obstacle_prediction: Some(1.0), ..team };
+        let check = Recheck::new(&team, &AmSettings::safety_filter());
+        assert!(!check.clear(&plan, 1.0, 4.0, &[ball(0.5, 0.0, 0.0, 0.0)]));
+    }
+
+    #[test]
     fn the_buffer_is_the_verification_margin_and_the_first_instants_the_tolerance() {
         let (team, plan) = crossing();
         let p = plan.at(2.5)[0].position;

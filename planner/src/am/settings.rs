@@ -4,6 +4,7 @@ use serde::{Deserialize, Serialize};
 
 /// Penalty schedule: `rho_l = min(max, initial * factor^(l / every))`.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct RhoSchedule {
     /// Penalty at iteration 0.
     pub initial: f64,
@@ -61,6 +62,7 @@ impl RhoSchedule {
 /// Either way `max_iterations` ends the run ([`Stop::IterationCap`], after a
 /// last verification).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct AmSettings {
     /// Penalty schedule.
     pub rho: RhoSchedule,

@@ -193,7 +193,7 @@ impl Controller {
     fn open(channel: &TeamChannel) -> Result<Self> {
         let endpoint = Endpoint::new("flowopt-sim")?;
         let states = endpoint.state_publisher(channel)?;
-        let plans = endpoint.plan_subscriber(channel)?;
+        let plans = endpoint.plan_subscriber(channel, &states)?;
         Ok(Self { _endpoint: endpoint, states, plans })
     }
 }

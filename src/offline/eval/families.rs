@@ -11,8 +11,10 @@ use flowopt_planner::scenes::Family;
 
 use super::figures::{self, Curve};
 use super::report::{Table, ms, num, pct};
-use super::{Row, Runs};
-use crate::offline::methods::{Method, Record};
+use super::rows::{Row, Runs};
+use flowopt_methods::Method;
+
+use crate::offline::harness::Record;
 use crate::offline::stats::{mean, quantile};
 
 /// The scene-family rows of table 7: family and robots (2D).

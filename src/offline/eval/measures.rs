@@ -7,7 +7,7 @@ use flowopt_planner::am::Residuals;
 use flowopt_planner::plan::JointPlan;
 use flowopt_planner::problem::Team;
 
-use crate::offline::methods::Record;
+use crate::offline::harness::Record;
 use crate::offline::stats::{mean, quantile};
 
 /// Fraction of `records` that succeeded within `budget_ms` (each planned
@@ -131,6 +131,7 @@ mod tests {
             iterations_to_0_01: None,
             iterations_to_0_001: None,
             stages: None,
+            by: "test",
             xi: Vec::new(),
             study: Vec::new(),
         }

@@ -1,0 +1,101 @@
+//! Building a team's planner: every engine a snapshot can need (the warm
+//! start's and the stopping plans' safety filters for every obstacle
+//! count, the cold planners' engines), the checks of held plans, and the
+//! cold planners' race, so that no snapshot waits for a factorisation.
+
+use std::time::Duration;
+
+use flowopt_methods::build::members;
+use flowopt_methods::settings::{buffered, tracking_buffer};
+use flowopt_methods::{PlanError, Planner, Race};
+use flowopt_planner::am::{AmSettings, EngineError, EngineSet, Objective, Recheck};
+use flowopt_planner::reference::{ReferenceError, SmoothReference};
+use flowopt_planner::route::Fitter;
+use flowopt_planner::stopping::stopping_team;
+use thiserror::Error;
+use tracing::info;
+
+use crate::config::{ConfigError, TeamConfig};
+use crate::planning::{Rules, TeamPlanner};
+
+/// Iteration cap of the warm-start safety filter (about 10 ms for 16
+/// robots); it also gets at most half the deadline, leaving the rest to a
+/// cold plan when it does not verify.
+const WARM_ITERATIONS: usize = 2000;
+
+/// Why a team's planner cannot be built.
+#[derive(Debug, Error)]
+pub enum PreloadError {
+    /// The team's configuration is invalid.
+    #[error(transparent)]
+    Config(#[from] ConfigError),
+    /// An engine cannot be built for it.
+    #[error("cannot build the engines: {0}")]
+    Engine(#[from] EngineError),
+    /// A cold planner cannot be built (weights named but missing, or not
+    /// for this team).
+    #[error("cannot build the cold planners: {0}")]
+    Planner(#[from] PlanError),
+}
+
+impl TeamPlanner {
+    /// Builds every engine (basis, sample grids, KKT factorisations) the
+    /// team can need, so that no snapshot waits for one, and starts the
+    /// cold planners' race ([`flowopt_methods::build::members`] of the
+    /// team's `[team.planner]` settings, with the tracking buffer).
+    pub fn preload(config: &TeamConfig) -> Result<Self, PreloadError> {
+        let team = config.team()?;
+        let settings = config.planner_settings(&team);
+        let buffer = tracking_buffer(&team, config.follow_tolerance_m);
+        let max = config.max_obstacles;
+        let filter_settings =
+            buffered(AmSettings { max_iterations: WARM_ITERATIONS, ..AmSettings::safety_filter() }, buffer);
+        let filters = EngineSet::preloaded(&team, Objective::Projection, filter_settings, max)?;
+        let stop_horizon = config.stop_horizon();
+        let stop_team = stopping_team(&team, stop_horizon);
+        // Stopping plans, the last resort before none, are verified at the
+        // true sizes: robots a jam has left within the buffer of each other
+        // are then still held apart under control instead of braking on
+        // their own (and drifting) with no plan at all.
+        let stop_settings = AmSettings { verify_margin: 0.0, ..buffered(AmSettings::safety_filter(), buffer) };
+        let stops = EngineSet::preloaded(&stop_team, Objective::Projection, stop_settings, max)?;
+        let stop_reference = SmoothReference::new(&stop_team).map_err(|e| match e {
+            ReferenceError::Basis(b) => EngineError::Problem(b.into()),
+            ReferenceError::Kkt(k) => EngineError::Kkt(k),
+        })?;
+        let basis = team.basis().map_err(|e| EngineError::Problem(e.into()))?;
+        let fitter = Fitter::new(&basis).map_err(EngineError::Kkt)?;
+        let (racers, alone) = members(&settings, &team)?;
+        if let Some(why) = alone {
+            info!(team = config.name, "cold plans by the optimiser alone: {why}");
+        }
+        let budget = Duration::from_secs_f64(config.cold_budget_ms * 1e-3);
+        let mut cold = Race::start(&config.name, racers, Some(budget), || {});
+        for obstacles in 0..=max {
+            cold.ready(&team, obstacles)?;
+        }
+        Ok(TeamPlanner {
+            recheck_goals: Recheck::new(&team, &filter_settings),
+            recheck_stops: Recheck::new(&stop_team, &stop_settings),
+            team,
+            rules: Rules {
+                deadline: Duration::from_secs_f64(config.deadline_ms * 1e-3),
+                max_speed: config.max_speed,
+                max_acceleration: config.max_acceleration,
+                follow_tolerance: config.follow_tolerance_m,
+                warm_tolerance: config.warm_tolerance_m,
+                stale_after_ns: (config.stale_after_ms * 1e6) as u64,
+                stop_horizon,
+            },
+            filters,
+            stops,
+            stop_reference,
+            fitter,
+            cold,
+            held: None,
+            newest: None,
+            pending: None,
+            fresh: None,
+        })
+    }
+}

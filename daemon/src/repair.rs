@@ -1,0 +1,101 @@
+//! The repairs the policy makes plans with: the safety filter on a sample
+//! shifted to the newest state ([`TeamPlanner::refine`]: a warm start, or a
+//! cold plan the robots left), a stopping plan from the newest state
+//! ([`TeamPlanner::stopping`]), and the speed and acceleration limits every
+//! plan keeps ([`TeamPlanner::within_limits`]).
+
+use std::time::Instant;
+
+use flowopt_planner::am::{AmSettings, Budget, Stop};
+use flowopt_planner::metrics::DENSE_FACTOR;
+use flowopt_planner::plan::JointPlan;
+use flowopt_planner::problem::Problem;
+use flowopt_planner::stopping::stopping_problem;
+use tracing::info_span;
+
+use crate::answer::{Answer, Why};
+use crate::held::{Candidate, World};
+use crate::planning::TeamPlanner;
+
+/// Start speed (m/s) below which a robot counts as at rest, so that a plan
+/// may be stretched in time without changing its start.
+const AT_REST: f64 = 0.02;
+
+impl TeamPlanner {
+    /// The safety filter on `sample` shifted by `dt` for `world`: a
+    /// verified candidate within the limits, `None` if it did not verify,
+    /// or why it cannot be published.
+    pub(crate) fn refine(
+        &self,
+        sample: &JointPlan,
+        dt: f64,
+        world: &World,
+        until: Instant,
+        answer: &mut Answer,
+    ) -> Result<Option<Candidate>, Why> {
+        let t = Instant::now();
+        let mut start = world.problem.clone();
+        let xi = {
+            let _span = info_span!("warm_start").entered();
+            sample.shifted(dt.max(0.0), &mut start, &self.fitter)
+        };
+        answer.stages.warm_start += t.elapsed();
+        let t = Instant::now();
+        let _span = info_span!("filter").entered();
+        let outcome = self.filters.get(start.obstacles.len()).and_then(|engine| {
+            let prepared = engine.prepare(&start, Some(&xi)).ok()?;
+            Some((engine, engine.run_within(&prepared, engine.cold_start(&prepared), &Budget::until(until))))
+        });
+        answer.stages.filter += t.elapsed();
+        let Some((engine, outcome)) = outcome else { return Ok(None) };
+        answer.iterations += outcome.iterations;
+        answer.candidates = 1;
+        if outcome.stop != Stop::Verified {
+            return Ok(None);
+        }
+        let plan = self.within_limits(engine.plan(outcome.state.xi), &start)?;
+        let (origin_ns, sequence) = (world.origin_ns, world.sequence);
+        Ok(Some(Candidate { plan, problem: start, origin_ns, sequence, primal: outcome.primal }))
+    }
+
+    /// `plan` if it keeps the team's speed and acceleration limits; else
+    /// stretched in time when the robots start at rest and every obstacle is
+    /// static (the paths, and so the verified clearances, are unchanged);
+    /// else [`Why::Limits`].
+    pub(crate) fn within_limits(&self, plan: JointPlan, problem: &Problem) -> Result<JointPlan, Why> {
+        let (speed, acceleration) = plan.peak_rates(DENSE_FACTOR * self.team.samples);
+        let factor = (speed / self.rules.max_speed).max((acceleration / self.rules.max_acceleration).sqrt());
+        if factor <= 1.0 {
+            return Ok(plan);
+        }
+        let at_rest = problem.starts.iter().all(|s| s.velocity.norm() <= AT_REST && s.acceleration.norm() <= AT_REST);
+        let static_obstacles = problem.obstacles.iter().all(|o| o.velocity.norm() == 0.0);
+        if at_rest && static_obstacles && factor.is_finite() {
+            Ok(plan.stretched(factor * (1.0 + 1e-6)))
+        } else {
+            Err(Why::Limits)
+        }
+    }
+
+    /// A verified stopping plan from `world`'s state against its
+    /// obstacles, within the limits, made by `until`.
+    pub(crate) fn stopping(&self, world: &World, until: Instant, answer: &mut Answer) -> Option<Candidate> {
+        let _span = info_span!("stopping").entered();
+        let t = Instant::now();
+        let inset = self.team.robot.radius * AmSettings::safety_filter().margin;
+        let stop = stopping_problem(&world.problem, self.stops.team().horizon, inset);
+        stop.validate().ok()?;
+        let engine = self.stops.get(stop.obstacles.len())?;
+        let sample = self.stop_reference.coefficients(&stop);
+        let prepared = engine.prepare(&stop, Some(&sample)).ok()?;
+        let outcome = engine.run_within(&prepared, engine.cold_start(&prepared), &Budget::until(until));
+        answer.stages.filter += t.elapsed();
+        answer.iterations += outcome.iterations;
+        if outcome.stop != Stop::Verified {
+            return None;
+        }
+        let plan = self.within_limits(engine.plan(outcome.state.xi), &stop).ok()?;
+        let (origin_ns, sequence) = (world.origin_ns, world.sequence);
+        Some(Candidate { plan, problem: stop, origin_ns, sequence, primal: outcome.primal })
+    }
+}
