@@ -163,7 +163,7 @@ fn a_killed_daemon_leaves_the_held_plan_and_its_successor_takes_over() {
 
 /// The daemon's default `obstacle_prediction_s`: how far ahead a moving
 /// obstacle's reported motion is kept clear of.
-const PREDICTION_S: f64 = 2.0;
+const PREDICTION_S: f64 = 3.5;
 
 /// Checks that `msg`, if it says to follow a trajectory, keeps clear of
 /// `obstacles` (reported at `reported_ns`) from then over the rest of its

@@ -70,7 +70,7 @@ impl TeamPlanner {
             info!(team = config.name, "cold plans by the optimiser alone: {why}");
         }
         let budget = Duration::from_secs_f64(config.cold_budget_ms * 1e-3);
-        let mut cold = Race::start(&config.name, racers, Some(budget), || {});
+        let mut cold = Race::start(&config.name, racers, Some(budget), crate::realtime::lower_lane_priority);
         for obstacles in 0..=max {
             cold.ready(&team, obstacles)?;
         }

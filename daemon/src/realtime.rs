@@ -149,6 +149,26 @@ fn fifo_scale(priority: u8) -> u8 {
     (p * 255.0 / 98.0).ceil().min(255.0) as u8
 }
 
+/// How much nicer (Linux `nice`) than the rest of the process the cold
+/// lanes run: on a machine where the controller shares the cores, a cold
+/// plan running past its snapshot's deadline yields to the controller's
+/// and the simulator's threads instead of taking a core from them for a
+/// time slice (the worker, under SCHED_FIFO, preempts them anyway).
+const LANE_NICENESS: i32 = 5;
+
+/// Lowers the calling thread's priority by [`LANE_NICENESS`] (best effort;
+/// a refusal is logged): what each cold-planning lane runs first.
+pub fn lower_lane_priority() {
+    // SAFETY: plain syscalls on the calling thread.
+    unsafe {
+        let tid = libc::syscall(libc::SYS_gettid) as libc::id_t;
+        let now = libc::getpriority(libc::PRIO_PROCESS, tid);
+        if libc::setpriority(libc::PRIO_PROCESS, tid, now + LANE_NICENESS) != 0 {
+            warn!("cannot lower a cold-planning thread's priority");
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
