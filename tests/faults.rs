@@ -161,9 +161,10 @@ fn a_killed_daemon_leaves_the_held_plan_and_its_successor_takes_over() {
     assert!(plan.status().unwrap().followable(), "{:?}", plan.reason());
 }
 
-/// The daemon's default `obstacle_prediction_s`: how far ahead a moving
-/// obstacle's reported motion is kept clear of.
-const PREDICTION_S: f64 = 3.5;
+/// How far ahead the daemon checks followable answers against a moving
+/// obstacle's reported motion: `TeamConfig::obstacle_check_s` of the
+/// default `obstacle_prediction_s` (3.5 s, less 1 s).
+const PREDICTION_S: f64 = 2.5;
 
 /// Checks that `msg`, if it says to follow a trajectory, keeps clear of
 /// `obstacles` (reported at `reported_ns`) from then over the rest of its

@@ -210,11 +210,28 @@ fn default_obstacle_prediction_s() -> f64 {
     3.5
 }
 
+/// How much shorter (s) than a plan's obstacle prediction the check of a
+/// followable answer against a newer snapshot is: a plan made to keep
+/// clear of a walker's next `obstacle_prediction_s` stays followable while
+/// the walker's next `obstacle_prediction_s - 1` clear it, so that the
+/// window moving on with every snapshot does not reject every held plan
+/// at its edge (a cliff the outside controller's walker found: held plans
+/// 4-11 mm clear at the window's end, inside the buffer 20 ms later).
+pub const FOLLOW_CHECK_SLACK_S: f64 = 1.0;
+
 impl TeamConfig {
     /// The stopping plans' horizon (s): `2 max_speed / max_acceleration`,
     /// at least 0.5 s.
     pub fn stop_horizon(&self) -> f64 {
         (2.0 * self.max_speed / self.max_acceleration).max(0.5)
+    }
+
+    /// How far ahead (s) every followable answer is checked against the
+    /// newest snapshot's moving obstacles, robots resting at the end of
+    /// their plan: [`FOLLOW_CHECK_SLACK_S`] less than `obstacle_prediction_s`,
+    /// at least the stopping horizon.
+    pub fn obstacle_check_s(&self) -> f64 {
+        (self.obstacle_prediction_s - FOLLOW_CHECK_SLACK_S).max(self.stop_horizon())
     }
 
     /// How this team's cold plans are made: its `[team.planner]` settings,

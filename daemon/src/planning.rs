@@ -100,9 +100,9 @@ pub(crate) struct Rules {
     /// How old the newest accepted snapshot may be for a plan to be
     /// re-issued without a newer one (ns).
     pub(crate) stale_after_ns: u64,
-    /// The stopping plans' horizon (s): every followable plan is checked at
-    /// least this far ahead.
-    pub(crate) stop_horizon: f64,
+    /// How far ahead (s) a followable plan is checked against the newest
+    /// world, robots resting at its end ([`TeamConfig::obstacle_check_s`]).
+    pub(crate) check_window: f64,
 }
 
 /// A team's preloaded engines and its planning state.
@@ -174,7 +174,7 @@ impl TeamPlanner {
             Kind::Stopping => &self.recheck_stops,
         };
         let elapsed = elapsed.max(0.0);
-        let window = (plan.horizon - elapsed).max(self.rules.stop_horizon);
+        let window = (plan.horizon - elapsed).max(self.rules.check_window);
         if !recheck.clear(plan, elapsed, window, &world.problem.obstacles) {
             return Err(Why::WorldChanged);
         }
@@ -631,7 +631,7 @@ mod tests {
     fn clears(planner: &TeamPlanner, problem: &Problem, origin_ns: u64) {
         let held = planner.held().expect("a held plan");
         let elapsed = seconds(held.origin_ns, origin_ns);
-        let window = (held.plan.horizon - elapsed).max(planner.rules.stop_horizon);
+        let window = (held.plan.horizon - elapsed).max(planner.rules.check_window);
         let check = Recheck::new(&problem.team, &AmSettings::safety_filter());
         assert!(check.clear(&held.plan, elapsed, window, &problem.obstacles), "the followed plan crosses an obstacle");
     }

@@ -9,6 +9,7 @@ use flowopt_methods::build::members;
 use flowopt_methods::settings::{buffered, tracking_buffer};
 use flowopt_methods::{PlanError, Planner, Race};
 use flowopt_planner::am::{AmSettings, EngineError, EngineSet, Objective, Recheck};
+use flowopt_planner::problem::Team;
 use flowopt_planner::reference::{ReferenceError, SmoothReference};
 use flowopt_planner::route::Fitter;
 use flowopt_planner::stopping::stopping_team;
@@ -74,9 +75,13 @@ impl TeamPlanner {
         for obstacles in 0..=max {
             cold.ready(&team, obstacles)?;
         }
+        // Followable answers are checked against newer snapshots over a
+        // shorter prediction than plans are made with.
+        let check_window = config.obstacle_check_s();
+        let checked = |t: &Team| Team { obstacle_prediction: Some(check_window), ..t.clone() };
         Ok(TeamPlanner {
-            recheck_goals: Recheck::new(&team, &filter_settings),
-            recheck_stops: Recheck::new(&stop_team, &stop_settings),
+            recheck_goals: Recheck::new(&checked(&team), &filter_settings),
+            recheck_stops: Recheck::new(&checked(&stop_team), &stop_settings),
             team,
             rules: Rules {
                 deadline: Duration::from_secs_f64(config.deadline_ms * 1e-3),
@@ -85,7 +90,7 @@ impl TeamPlanner {
                 follow_tolerance: config.follow_tolerance_m,
                 warm_tolerance: config.warm_tolerance_m,
                 stale_after_ns: (config.stale_after_ms * 1e6) as u64,
-                stop_horizon,
+                check_window,
             },
             filters,
             stops,

@@ -3,8 +3,9 @@
 //! the box on a dense grid (within the success tolerance), starting where
 //! the robots are, and clear of the obstacles the controller reported in
 //! the snapshot the message answers, along their reported motion, over the
-//! rest of the plan (a moving obstacle within the team's prediction window,
-//! `Team::obstacle_prediction`, as the daemon verifies it).
+//! rest of the plan (a moving obstacle within the window the daemon checks
+//! followable answers over, `TeamConfig::obstacle_check_s`, passed as the
+//! team's `obstacle_prediction`).
 
 use flowopt_client::Followed;
 use flowopt_planner::metrics::{DENSE_FACTOR, Metrics};

@@ -30,7 +30,7 @@ use anyhow::{Context, Result, bail};
 use clap::Args;
 use flowopt_client::clock::monotonic_ns;
 use flowopt_client::{Endpoint, JointTrajectory, PlanStatus, PlanSubscriber, Reason, StatePublisher, TeamChannel};
-use flowopt_planner::problem::{Obstacle, Problem};
+use flowopt_planner::problem::{Obstacle, Problem, Team};
 use flowopt_planner::scenario::RandomScenario;
 use hdrhistogram::Histogram;
 use serde::{Deserialize, Serialize};
@@ -301,6 +301,9 @@ fn simulate(args: &SimArgs) -> Result<SimReport> {
     }
     let (config, team_config) = args.daemon.team(args.team.as_deref())?;
     let team = team_config.team()?;
+    // The contract's check of a followable answer: moving obstacles over
+    // the daemon's shorter check window.
+    let checked = Team { obstacle_prediction: Some(team_config.obstacle_check_s()), ..team.clone() };
     let scenario = RandomScenario::new(team.clone());
     let first = scenario.generate(args.seed).context("drawing the start positions")?;
     let mut robots = Robots::new(&first, args.seed);
@@ -383,7 +386,7 @@ fn simulate(args: &SimArgs) -> Result<SimReport> {
         if key.is_some() && key != followed_key {
             let f = followed.as_ref().context("a followed plan")?;
             let (reported_ns, obstacles) = answered.and_then(|a| reported.answered_by(a)).unwrap_or((0, &[]));
-            if let Err(failure) = check(&team, f, &robots.position, simulated_ns, obstacles, reported_ns) {
+            if let Err(failure) = check(&checked, f, &robots.position, simulated_ns, obstacles, reported_ns) {
                 warn!(status = ?f.status, plan_sequence = f.plan_sequence, "followed a plan that fails the check: {failure:?}");
                 let through = matches!(failure, Failure::ThroughObstacle(_));
                 counters.each(t, |tally| {
