@@ -123,3 +123,72 @@ fn a_restarted_daemon_is_picked_up_by_its_clients() {
     let plan = c.request(&problem(7), |_| {});
     assert_eq!(plan.status(), Ok(PlanStatus::Ok));
 }
+
+/// `GET path` from `addr`, retried while the daemon starts.
+fn scrape(addr: &str, path: &str) -> String {
+    use std::io::{Read, Write};
+    let since = std::time::Instant::now();
+    loop {
+        if let Ok(mut stream) = std::net::TcpStream::connect(addr) {
+            stream.write_all(format!("GET {path} HTTP/1.1\r\nHost: flowopt\r\n\r\n").as_bytes()).unwrap();
+            let mut text = String::new();
+            stream.read_to_string(&mut text).unwrap();
+            return text;
+        }
+        assert!(since.elapsed() < common::ANSWER, "nothing listens on {addr}");
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    }
+}
+
+#[test]
+fn the_metrics_endpoint_counts_the_answers_by_status_and_reason() {
+    // A port the system had free a moment ago.
+    let port = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();
+    let addr = format!("127.0.0.1:{port}");
+    let setup = Setup::new("metrics");
+    let _daemon = setup.daemon_with(&["--metrics", &addr]);
+    let mut c = setup.controller("e2e-metrics");
+    let p = problem(3);
+    for _ in 0..3 {
+        assert!(c.request(&p, |_| {}).status().unwrap().followable());
+    }
+    assert_eq!(c.request(&p, |s| s.robot[0].position[0] = f64::NAN).reason(), Ok(Reason::NonFinite));
+    let text = scrape(&addr, "/metrics");
+    assert!(text.starts_with("HTTP/1.1 200 OK"), "{text}");
+    let count = |prefix: &str| -> f64 {
+        text.lines().filter(|l| l.starts_with(prefix)).filter_map(|l| l.rsplit(' ').next()?.parse::<f64>().ok()).sum()
+    };
+    let followable = ["Ok", "Held", "Stopping"]
+        .iter()
+        .map(|s| count(&format!("flowopt_answers_total{{team=\"t\",status=\"{s}\"")))
+        .sum::<f64>();
+    assert!(followable >= 3.0, "{text}");
+    assert!(count("flowopt_answers_total{team=\"t\",status=\"Held\",reason=\"NonFinite\"}") >= 1.0, "{text}");
+    assert!(count("flowopt_answer_latency_seconds_count{team=\"t\"}") >= 4.0, "{text}");
+}
+
+#[test]
+fn an_installed_binary_runs_the_demo_from_an_empty_directory_with_the_learned_racer() {
+    // The binary alone, as `cargo install` leaves it, run where there is
+    // no configuration and no weights.
+    let root = std::env::temp_dir().join(format!("flowopt-e2e-{}-installed", std::process::id()));
+    let _ = std::fs::remove_dir_all(&root);
+    std::fs::create_dir_all(root.join("bin")).unwrap();
+    std::fs::create_dir_all(root.join("empty")).unwrap();
+    let installed = root.join("bin/flowopt");
+    std::fs::copy(common::exe(), &installed).unwrap();
+    let out = std::process::Command::new(&installed)
+        .args(["demo", "--seconds", "3", "--json"])
+        .current_dir(root.join("empty"))
+        .env_remove("FLOWOPT_CONFIG")
+        .env("RUST_LOG", "info")
+        .stdin(Stdio::null())
+        .output()
+        .unwrap();
+    let log = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{log}");
+    let report: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert!(report["statuses"]["Ok"].as_u64().unwrap_or(0) > 0, "{report}");
+    assert!(log.contains("cold planners: learned, optimiser"), "the learned racer is loaded:\n{log}");
+    std::fs::remove_dir_all(&root).unwrap();
+}

@@ -48,6 +48,7 @@
 pub mod clock;
 pub mod follow;
 pub mod messages;
+pub mod pieces;
 pub mod ports;
 
 use thiserror::Error;

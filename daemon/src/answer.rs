@@ -57,11 +57,14 @@ pub struct Answer {
     pub candidates: usize,
     /// Stage times of this answer.
     pub stages: Stages,
+    /// The cold planner whose plan this answer adopted (`None`: no cold
+    /// plan was adopted).
+    pub by: Option<&'static str>,
 }
 
 impl Answer {
     /// An answer saying `follow` for `why`, with nothing spent yet.
     pub(crate) fn new(follow: Follow, why: Why) -> Self {
-        Self { follow, why, iterations: 0, warm: false, candidates: 0, stages: Stages::default() }
+        Self { follow, why, iterations: 0, warm: false, candidates: 0, stages: Stages::default(), by: None }
     }
 }

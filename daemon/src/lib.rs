@@ -24,6 +24,7 @@ pub mod config;
 pub mod convert;
 pub mod held;
 pub mod lock;
+pub mod metrics;
 pub mod planning;
 mod preload;
 pub mod realtime;

@@ -331,6 +331,7 @@ impl TeamPlanner {
         self.cold.cancel();
         self.pending = None;
         answer.candidates = planned.candidates;
+        let won = |answer: &Answer| Answer { by: Some(planned.by), ..answer.clone() };
         let request = result.request;
         let Ok(plan) = self.within_limits(planned.plan, &request.problem) else {
             answer.why = Why::Limits;
@@ -348,11 +349,11 @@ impl TeamPlanner {
             return None;
         }
         if self.may_follow(&candidate.plan, candidate.origin_ns, Kind::Goals, &world).is_ok() {
-            return Some(self.adopt(candidate, answer.clone()));
+            return Some(self.adopt(candidate, won(answer)));
         }
         let dt = seconds(candidate.origin_ns, world.origin_ns);
         match self.refine(&candidate.plan, dt, &world, until, answer) {
-            Ok(Some(repaired)) => Some(self.adopt(repaired, answer.clone())),
+            Ok(Some(repaired)) => Some(self.adopt(repaired, won(answer))),
             _ => {
                 self.fresh = Some(candidate);
                 None

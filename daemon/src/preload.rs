@@ -70,6 +70,8 @@ impl TeamPlanner {
         if let Some(why) = alone {
             info!(team = config.name, "cold plans by the optimiser alone: {why}");
         }
+        let names: Vec<&str> = racers.iter().map(|r| r.name()).collect();
+        info!(team = config.name, "cold planners: {}", names.join(", "));
         let budget = Duration::from_secs_f64(config.cold_budget_ms * 1e-3);
         let mut cold = Race::start(&config.name, racers, Some(budget), crate::realtime::lower_lane_priority);
         for obstacles in 0..=max {

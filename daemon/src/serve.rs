@@ -3,8 +3,9 @@
 //! worker, replacing one the worker has not started yet.
 
 use std::cell::Cell;
-use std::sync::Arc;
+use std::net::SocketAddr;
 use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
 use crossbeam::channel::{Receiver, Sender, TrySendError, bounded};
@@ -18,6 +19,7 @@ use tracing::{debug, info, warn};
 
 use crate::config::DaemonConfig;
 use crate::lock::{LockError, TeamLock};
+use crate::metrics::{Metrics, MetricsError, serve_metrics};
 use crate::planning::TeamPlanner;
 use crate::preload::PreloadError;
 use crate::worker::{self, Job};
@@ -45,6 +47,9 @@ pub enum DaemonError {
     /// A worker thread ended unexpectedly.
     #[error("the worker of team {0:?} stopped")]
     WorkerGone(String),
+    /// The metrics endpoint cannot be served.
+    #[error(transparent)]
+    Metrics(#[from] MetricsError),
 }
 
 /// One served team, as seen from the WaitSet thread.
@@ -124,8 +129,14 @@ impl Served {
 
 /// Runs the daemon until `shutdown` is set (by a signal handler: the
 /// signal also interrupts the wait; the WaitSet also wakes every
-/// [`DEAD_NODE_SWEEP`] to sweep dead nodes and look at the flag).
-pub fn serve(config: &DaemonConfig, shutdown: Arc<AtomicBool>) -> Result<(), DaemonError> {
+/// [`DEAD_NODE_SWEEP`] to sweep dead nodes and look at the flag). With
+/// `metrics_addr`, serves the teams' Prometheus metrics there
+/// ([`crate::metrics`]).
+pub fn serve(
+    config: &DaemonConfig,
+    shutdown: Arc<AtomicBool>,
+    metrics_addr: Option<SocketAddr>,
+) -> Result<(), DaemonError> {
     match cleanup_dead_nodes() {
         Ok(0) => {}
         Ok(n) => info!("removed the resources of {n} dead iceoryx2 nodes"),
@@ -138,6 +149,7 @@ pub fn serve(config: &DaemonConfig, shutdown: Arc<AtomicBool>) -> Result<(), Dae
         .map(|team| TeamLock::acquire(&config.ipc.prefix, &team.name))
         .collect::<Result<Vec<_>, _>>()?;
     let endpoint = Endpoint::new("flowopt-daemon")?;
+    let metrics = Arc::new(Mutex::new(Metrics::default()));
     let mut served = Vec::new();
     for team in &config.teams {
         let started = Instant::now();
@@ -149,9 +161,10 @@ pub fn serve(config: &DaemonConfig, shutdown: Arc<AtomicBool>) -> Result<(), Dae
         let (ready_tx, ready) = bounded(1);
         let evict = rx.clone();
         let (cfg, ch) = (team.clone(), channel.clone());
+        let team_metrics = metrics.lock().map_err(|_| DaemonError::WorkerGone(team.name.clone()))?.team(&team.name);
         let (finished_tx, finished) = bounded(1);
         let work = move || {
-            let run = std::panic::AssertUnwindSafe(|| worker::run(cfg, ch, planner, rx, ready_tx));
+            let run = std::panic::AssertUnwindSafe(|| worker::run(cfg, ch, planner, rx, ready_tx, team_metrics));
             let _ = finished_tx.send(std::panic::catch_unwind(run).is_ok());
         };
         let (worker, _granted) = config
@@ -173,6 +186,9 @@ pub fn serve(config: &DaemonConfig, shutdown: Arc<AtomicBool>) -> Result<(), Dae
         info!(team = team.name, "serving {}/{}/state", config.ipc.prefix, team.name);
     }
 
+    if let Some(addr) = metrics_addr {
+        serve_metrics(addr, Arc::clone(&metrics))?;
+    }
     config.realtime.lock_memory_now();
     let waitset = WaitSetBuilder::new()
         .signal_handling_mode(SignalHandlingMode::Disabled)

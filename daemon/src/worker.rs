@@ -20,6 +20,7 @@ use crate::answer::{Answer, Follow, Why};
 use crate::config::TeamConfig;
 use crate::convert::{Plausible, Rejection, check_header, measured};
 use crate::held::Held;
+use crate::metrics::TeamMetrics;
 use crate::planning::TeamPlanner;
 use flowopt_planner::method::Stages;
 
@@ -44,6 +45,7 @@ pub(crate) fn run(
     mut planner: TeamPlanner,
     jobs: Receiver<Job>,
     ready: Sender<Result<(), PortError>>,
+    mut metrics: TeamMetrics,
 ) {
     let publisher = match Endpoint::new(&format!("flowopt-daemon-{}", config.name))
         .and_then(|endpoint| endpoint.plan_publisher(&channel).map(|p| (endpoint, p)))
@@ -65,13 +67,18 @@ pub(crate) fn run(
     let cold_results = planner.cold_results();
     let mut last_job = Instant::now();
     let mut reported_stale = true;
+    // When the newest accepted snapshot arrived (a late cold plan answers it).
+    let mut newest_received_ns = 0;
     loop {
         select! {
             recv(jobs) -> job => {
                 let Ok(job) = job else { break };
                 reported_stale = false;
                 last_job = Instant::now();
-                answer(&config, &mut planner, &mut admission, &publisher, &job);
+                answer(&config, &mut planner, &mut admission, &publisher, &job, &mut metrics);
+                if planner.newest().is_some_and(|(sequence, _)| sequence == job.snapshot.sequence) {
+                    newest_received_ns = job.received_ns;
+                }
                 if let Some(period) = period {
                     std::thread::sleep(period.saturating_sub(last_job.elapsed()));
                 }
@@ -80,8 +87,12 @@ pub(crate) fn run(
                 let Ok(result) = result else { continue };
                 let answered = planner.newest();
                 if let (Some(answer), Some((sequence, timestamp))) = (planner.on_cold(result), answered) {
-                    let reply = Reply::of(&answer, planner.held(), sequence, timestamp, monotonic_ns(), StageTimings::default());
-                    publish(&publisher, &reply, sequence);
+                    let reply =
+                        Reply::of(&answer, planner.held(), sequence, timestamp, newest_received_ns, StageTimings::default());
+                    publish(&publisher, &reply, sequence, &mut metrics);
+                    if let Some(by) = answer.by {
+                        metrics.won(by);
+                    }
                 }
             }
             default(stale_after.saturating_sub(last_job.elapsed())) => {
@@ -92,7 +103,7 @@ pub(crate) fn run(
                     let follow = planner.reissue(now);
                     let held = planner.held().filter(|_| follow == Follow::Held);
                     let reply = Reply::held(held, Reason::StaleState, u32::MAX, sequence, timestamp, now);
-                    publish(&publisher, &reply, sequence);
+                    publish(&publisher, &reply, sequence, &mut metrics);
                     reported_stale = true;
                 }
             }
@@ -158,6 +169,7 @@ fn answer(
     admission: &mut Admission,
     publisher: &PlanPublisher,
     job: &Job,
+    metrics: &mut TeamMetrics,
 ) {
     let s = &job.snapshot;
     let span = info_span!("plan", sequence = s.sequence);
@@ -188,13 +200,20 @@ fn answer(
     reply.timings.queue_us = us(queue);
     let _publish = info_span!("publish").entered();
     reply.timings.total_us = us(job.received.elapsed());
-    publish(publisher, &reply, sequence);
+    publish(publisher, &reply, sequence, metrics);
+    metrics.latency(job.received.elapsed(), planner.deadline());
+    if let Outcome::Planned(Answer { by: Some(by), .. }) = &outcome {
+        metrics.won(by);
+    }
 }
 
-fn publish(publisher: &PlanPublisher, reply: &Reply<'_>, sequence: u64) {
+/// Publishes `reply` (to snapshot `sequence`) and counts it.
+fn publish(publisher: &PlanPublisher, reply: &Reply<'_>, sequence: u64, metrics: &mut TeamMetrics) {
     if let Err(e) = publisher.publish_with(|msg| write_reply(msg, reply)) {
         warn!(sequence, "cannot publish the reply: {e}");
+        return;
     }
+    metrics.answered(reply.status, reply.reason);
 }
 
 /// Everything one plan message says.

@@ -50,6 +50,10 @@ pub struct DemoArgs {
     /// Print one JSON object instead of text.
     #[arg(long)]
     json: bool,
+    /// Serve the daemon's Prometheus metrics on this address
+    /// (`flowopt serve --metrics`).
+    #[arg(long, value_name = "ADDR")]
+    metrics: Option<std::net::SocketAddr>,
 }
 
 /// What became of the second daemon started for the same team.
@@ -110,6 +114,9 @@ pub fn run(args: DemoArgs, trace_out: Option<PathBuf>) -> Result<()> {
         serve.arg("serve").args(&shared);
         if let Some(path) = trace {
             serve.arg("--trace-out").arg(path);
+        }
+        if let Some(addr) = args.metrics {
+            serve.arg("--metrics").arg(addr.to_string());
         }
         serve.stdin(Stdio::null());
         serve

@@ -14,6 +14,11 @@ use crate::live::daemon_args::DaemonArgs;
 pub struct ServeArgs {
     #[command(flatten)]
     daemon: DaemonArgs,
+    /// Serve the teams' Prometheus metrics (answers by status and reason,
+    /// latency, late answers, cold planners' wins) on this address, e.g.
+    /// `127.0.0.1:9464`, at `/metrics`.
+    #[arg(long, value_name = "ADDR")]
+    metrics: Option<std::net::SocketAddr>,
 }
 
 /// Runs `flowopt serve` until SIGINT or SIGTERM.
@@ -23,6 +28,6 @@ pub fn run(args: ServeArgs) -> Result<()> {
     for signal in [SIGINT, SIGTERM] {
         signal_hook::flag::register(signal, Arc::clone(&shutdown)).context("cannot install the signal handlers")?;
     }
-    flowopt_daemon::serve(&config, shutdown)?;
+    flowopt_daemon::serve(&config, shutdown, args.metrics)?;
     Ok(())
 }

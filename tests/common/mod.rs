@@ -50,10 +50,16 @@ impl Setup {
     }
 
     pub fn daemon(&self) -> Daemon {
+        self.daemon_with(&[])
+    }
+
+    /// The daemon with `extra` arguments to `flowopt serve`.
+    pub fn daemon_with(&self, extra: &[&str]) -> Daemon {
         let child = Command::new(exe())
             .args(["serve", "--config"])
             .arg(&self.config)
             .args(["--ipc-prefix", &self.prefix])
+            .args(extra)
             .env("RUST_LOG", "error")
             .stdin(Stdio::null())
             .spawn()
