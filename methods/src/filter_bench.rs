@@ -32,13 +32,7 @@ impl PerturbedFilter {
     }
 
     fn set(&mut self, team: &Team) -> &mut EngineSet {
-        match self.filters.iter().position(|s| s.is_for(team, self.objective, &self.filter)) {
-            Some(i) => &mut self.filters[i],
-            None => {
-                self.filters.push(EngineSet::new(team, self.objective, self.filter));
-                self.filters.last_mut().expect("just pushed")
-            }
-        }
+        EngineSet::find_or_add(&mut self.filters, team, self.objective, self.filter)
     }
 }
 

@@ -48,14 +48,7 @@ impl Optimiser {
     }
 
     fn set(&mut self, team: &Team) -> &mut EngineSet {
-        let objective = Objective::smoothness();
-        match self.sets.iter().position(|s| s.is_for(team, objective, &self.settings)) {
-            Some(i) => &mut self.sets[i],
-            None => {
-                self.sets.push(EngineSet::new(team, objective, self.settings));
-                self.sets.last_mut().expect("just pushed")
-            }
-        }
+        EngineSet::find_or_add(&mut self.sets, team, Objective::smoothness(), self.settings)
     }
 }
 

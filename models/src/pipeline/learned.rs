@@ -81,23 +81,7 @@ impl LearnedPipeline {
     /// The safety filter for `team` with `obstacles` obstacles, built on
     /// first use; the networks must plan in the team's dimension and basis.
     pub fn filter(&mut self, team: &Team, obstacles: usize) -> Result<&Engine, ModelError> {
-        let index = self.filter_set(team, obstacles)?;
-        self.filters[index].get(obstacles).ok_or_else(|| ModelError::Config("the filter was built".into()))
-    }
-
-    /// The index of the filters of `team`, with the one for `obstacles` built.
-    fn filter_set(&mut self, team: &Team, obstacles: usize) -> Result<usize, ModelError> {
-        self.planner.model().check(team)?;
-        let objective = self.planner.sf_objective();
-        let index = match self.filters.iter().position(|s| s.is_for(team, objective, &self.filter)) {
-            Some(i) => i,
-            None => {
-                self.filters.push(EngineSet::new(team, objective, self.filter));
-                self.filters.len() - 1
-            }
-        };
-        self.filters[index].engine(obstacles)?;
-        Ok(index)
+        safety_filter(&self.planner, &mut self.filters, self.filter, team, obstacles)
     }
 
     /// Plans `queries` (one team shape and obstacle count) together, with
@@ -109,9 +93,8 @@ impl LearnedPipeline {
         seed: u64,
     ) -> Result<Vec<PipelineOutcome>, ModelError> {
         let Some(first) = queries.first() else { return Ok(Vec::new()) };
-        let obstacles = first.enforced.obstacles.len();
-        let index = self.filter_set(&first.enforced.team, obstacles)?;
-        let sf = self.filters[index].get(obstacles).ok_or_else(|| ModelError::Config("no safety filter".into()))?;
+        let (team, obstacles) = (&first.enforced.team, first.enforced.obstacles.len());
+        let sf = safety_filter(&self.planner, &mut self.filters, self.filter, team, obstacles)?;
         self.planner.model().plan_batch(queries, sf, &self.settings, seed, budget)
     }
 }
@@ -130,8 +113,8 @@ impl Planner for LearnedPipeline {
         let _span = tracing::info_span!("learned").entered();
         let started = std::time::Instant::now();
         let obstacles = problem.obstacles.len();
-        let index = self.filter_set(&problem.team, obstacles).map_err(unavailable)?;
-        let sf = self.filters[index].get(obstacles).ok_or_else(|| PlanError::Failed("no safety filter".into()))?;
+        let sf = safety_filter(&self.planner, &mut self.filters, self.filter, &problem.team, obstacles)
+            .map_err(unavailable)?;
         let out = self.planner.model().plan(problem, sf, &self.settings, seed, budget).map_err(failed)?;
         let chosen = out.refined.get(out.chosen).ok_or_else(|| PlanError::Failed("no candidate".into()))?;
         Ok(Planned {
@@ -147,6 +130,21 @@ impl Planner for LearnedPipeline {
             start: Some(Box::new((chosen.prepared.clone(), chosen.start.clone()))),
         })
     }
+}
+
+/// The safety filter of `planner` for `team` with `obstacles` obstacles,
+/// from `filters` (built on first use with `settings`); the networks must
+/// plan in the team's dimension and basis.
+fn safety_filter<'f>(
+    planner: &LearnedPlanner,
+    filters: &'f mut Vec<EngineSet>,
+    settings: AmSettings,
+    team: &Team,
+    obstacles: usize,
+) -> Result<&'f Engine, ModelError> {
+    planner.model().check(team)?;
+    let set = EngineSet::find_or_add(filters, team, planner.sf_objective(), settings);
+    Ok(set.engine(obstacles)?)
 }
 
 /// A team the networks cannot plan for.

@@ -43,6 +43,25 @@ impl EngineSet {
         self.team == *team && self.objective == objective && self.settings == *settings
     }
 
+    /// The set of `team`, `objective` and `settings` in `sets`, added
+    /// (empty) if there is none yet: planners that meet several team
+    /// shapes keep one set per shape.
+    pub fn find_or_add<'s>(
+        sets: &'s mut Vec<EngineSet>,
+        team: &Team,
+        objective: Objective,
+        settings: AmSettings,
+    ) -> &'s mut EngineSet {
+        let index = match sets.iter().position(|s| s.is_for(team, objective, &settings)) {
+            Some(i) => i,
+            None => {
+                sets.push(EngineSet::new(team, objective, settings));
+                sets.len() - 1
+            }
+        };
+        &mut sets[index]
+    }
+
     /// The team.
     pub fn team(&self) -> &Team {
         &self.team
@@ -81,5 +100,13 @@ mod tests {
         assert!(set.get(4).is_none() && set.get(5).is_some());
         assert!(set.is_for(&team, Objective::Projection, &AmSettings::safety_filter()));
         assert!(!set.is_for(&team, Objective::smoothness(), &AmSettings::safety_filter()));
+        // One set per (team, objective, settings) in a list.
+        let mut sets = Vec::new();
+        EngineSet::find_or_add(&mut sets, &team, Objective::Projection, AmSettings::safety_filter()).engine(1).unwrap();
+        let again = EngineSet::find_or_add(&mut sets, &team, Objective::Projection, AmSettings::safety_filter());
+        assert!(again.get(1).is_some(), "the same set is found again");
+        let other = Team::default_for(Dim::Two, 5);
+        EngineSet::find_or_add(&mut sets, &other, Objective::Projection, AmSettings::safety_filter());
+        assert_eq!(sets.len(), 2);
     }
 }
