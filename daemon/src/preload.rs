@@ -49,8 +49,11 @@ impl TeamPlanner {
         let settings = config.planner_settings(&team);
         let buffer = tracking_buffer(&team, config.follow_tolerance_m);
         let max = config.max_obstacles;
+        // Warm replans and stopping plans of big teams on the settings'
+        // threads, as the optimiser's cold plans (the same plans on any).
+        let threads = settings.threads();
         let filter_settings =
-            buffered(AmSettings { max_iterations: WARM_ITERATIONS, ..AmSettings::safety_filter() }, buffer);
+            buffered(AmSettings { max_iterations: WARM_ITERATIONS, threads, ..AmSettings::safety_filter() }, buffer);
         let filters = EngineSet::preloaded(&team, Objective::Projection, filter_settings, max)?;
         let stop_horizon = config.stop_horizon();
         let stop_team = stopping_team(&team, stop_horizon);
@@ -58,7 +61,7 @@ impl TeamPlanner {
         // true sizes: robots a jam has left within the buffer of each other
         // are then still held apart under control instead of braking on
         // their own (and drifting) with no plan at all.
-        let stop_settings = AmSettings { verify_margin: 0.0, ..buffered(AmSettings::safety_filter(), buffer) };
+        let stop_settings = AmSettings { verify_margin: 0.0, threads, ..buffered(AmSettings::safety_filter(), buffer) };
         let stops = EngineSet::preloaded(&stop_team, Objective::Projection, stop_settings, max)?;
         let stop_reference = SmoothReference::new(&stop_team).map_err(|e| match e {
             ReferenceError::Basis(b) => EngineError::Problem(b.into()),

@@ -64,13 +64,13 @@ pub type Members = (Vec<Box<dyn Planner>>, Option<String>);
 /// The planners `settings.method` runs for `team` (racing where there are
 /// several), and, where `auto` plans with the optimiser alone, why.
 pub fn members(settings: &PlannerSettings, team: &Team) -> Result<Members, PlanError> {
-    let optimiser = || Box::new(Optimiser::new(settings.optimiser)) as Box<dyn Planner>;
+    let optimiser = || Box::new(Optimiser::new(settings.optimiser())) as Box<dyn Planner>;
     let method = settings.method;
     Ok(match method {
         Method::Baseline => (vec![optimiser()], None),
         Method::SafetyFilter => {
             let objective = Objective::filter(settings.learned.sf_smoothing);
-            (vec![Box::new(PerturbedFilter::new(settings.optimiser, settings.filter, objective))], None)
+            (vec![Box::new(PerturbedFilter::new(settings.optimiser(), settings.filter, objective))], None)
         }
         Method::Flowopt | Method::FlowNoInit => {
             let pipeline = learned_for(settings, method, team)?.map_err(PlanError::Unavailable)?;

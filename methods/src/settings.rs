@@ -63,6 +63,12 @@ pub struct PlannerSettings {
     pub learned: PipelineSettings,
     /// The largest team `auto` races the learned pipeline for.
     pub race_max_robots: usize,
+    /// Threads the optimiser iterates on, the calling one among them (teams
+    /// of [`flowopt_planner::am::CREW_MIN_ROBOTS`] robots or more, one per
+    /// that many robots at most; the same plans for every count); 0: the
+    /// machine's cores less one, left for the daemon's worker
+    /// ([`Self::threads`]).
+    pub threads: usize,
 }
 
 impl Default for PlannerSettings {
@@ -73,11 +79,31 @@ impl Default for PlannerSettings {
             filter: AmSettings::safety_filter(),
             learned: PipelineSettings::default(),
             race_max_robots: RACE_MAX_ROBOTS,
+            threads: 0,
         }
     }
 }
 
 impl PlannerSettings {
+    /// The threads the optimiser iterates on: [`Self::threads`], or where
+    /// that is 0 the machine's cores less one, left for the daemon's worker
+    /// and the controllers beside it (at least one). On this project's
+    /// 2-core machine two threads for the 64-robot demo's replans took
+    /// `Ok` beside a busy process from 75% to 0% of answers: a crew that
+    /// spins between steps must not share its cores (docs/BENCHMARKS.md,
+    /// "Threads").
+    pub fn threads(&self) -> usize {
+        if self.threads > 0 {
+            return self.threads;
+        }
+        std::thread::available_parallelism().map_or(1, |c| c.get().saturating_sub(1)).max(1)
+    }
+
+    /// The optimiser's settings, on [`Self::threads`] threads.
+    pub fn optimiser(&self) -> AmSettings {
+        AmSettings { threads: self.threads(), ..self.optimiser }
+    }
+
     /// The defaults with `table`'s keys set (nested tables set nested keys).
     pub fn from_table(table: toml::Table) -> Result<Self, SettingsError> {
         let mut merged = Self::default().to_table()?;

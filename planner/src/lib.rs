@@ -8,6 +8,8 @@
 //! - [`kkt`]: the structured (mean/difference-mode) KKT solve and its dense
 //!   reference;
 //! - [`linalg`]: the dense products they run on;
+//! - [`crew`]: the threads a run's parallel steps share, and the fixed
+//!   blocks that keep its numbers independent of their count;
 //! - [`am`]: the alternating-minimisation engine, used as the safety filter
 //!   and as the from-scratch optimiser;
 //! - [`method`]: the one planner interface ([`method::Planner`]: a problem
@@ -25,6 +27,7 @@
 
 pub mod am;
 pub mod basis;
+pub mod crew;
 pub mod kkt;
 pub mod linalg;
 pub mod method;

@@ -128,7 +128,7 @@ pub fn run(args: DatagenArgs) -> Result<()> {
 fn solver_for(solver: &DataSolver, dim: flowopt_planner::problem::Dim) -> Result<Box<dyn Planner>, ModelError> {
     let settings = PlannerSettings::default();
     Ok(match solver {
-        DataSolver::Optimiser => Box::new(Optimiser::new(settings.optimiser)),
+        DataSolver::Optimiser => Box::new(Optimiser::new(settings.optimiser())),
         DataSolver::Pipeline { flow, init } => {
             let mut settings = settings;
             settings.learned.flow = WeightsRef::File(flow.checked()?.to_path_buf());

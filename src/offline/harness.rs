@@ -226,7 +226,7 @@ impl Harness {
         }
         let (objective, base) = match from {
             Some(_) => (Objective::filter(self.settings.learned.sf_smoothing), self.settings.filter),
-            None => (Objective::smoothness(), self.settings.optimiser),
+            None => (Objective::smoothness(), self.settings.optimiser()),
         };
         let settings = AmSettings { max_iterations: STUDY_CAP, restarts: 0, ..base.residual_study(0.001) };
         let team = &problem.team;

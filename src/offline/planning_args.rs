@@ -1,5 +1,5 @@
 //! How the planning subcommands choose their planner: `--method`,
-//! `--config FILE` and `--set KEY=VALUE`, read into the one
+//! `--config FILE`, `--set KEY=VALUE` and `--threads N`, read into the one
 //! [`PlannerSettings`] the daemon reads too.
 
 use std::path::PathBuf;
@@ -49,6 +49,11 @@ pub struct SettingsArgs {
     /// `learned.flow=path`); repeatable, applied in order.
     #[arg(long = "set", value_name = "KEY=VALUE")]
     pub set: Vec<String>,
+    /// Threads the optimiser iterates on, this one among them (teams of 32
+    /// robots or more; the same plans for every count); `--set threads=N`
+    /// [default: the settings', else the machine's cores less one].
+    #[arg(long, value_name = "N")]
+    pub threads: Option<usize>,
 }
 
 impl SettingsArgs {
@@ -71,6 +76,9 @@ impl SettingsArgs {
         };
         for assignment in &self.set {
             settings.set(assignment)?;
+        }
+        if let Some(threads) = self.threads {
+            settings.threads = threads;
         }
         Ok(settings)
     }

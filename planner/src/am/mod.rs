@@ -44,9 +44,9 @@ mod step;
 
 pub use engine::{AmOutcome, AmState, Engine, EngineError, FIRST_CONSTRAINED_SAMPLE, Objective, Residuals};
 pub use prepare::Prepared;
-pub use projection::{Limits, TWO_THREADS_MIN_ROBOTS};
+pub use projection::Limits;
 pub use recheck::Recheck;
-pub use run::{ATTEMPT_ITERATIONS_PER_ROBOT, Budget};
+pub use run::{ATTEMPT_ITERATIONS_PER_ROBOT, Budget, CREW_MIN_ROBOTS};
 pub use set::EngineSet;
 pub use settings::{AmSettings, RhoSchedule, Stop};
 pub use start::Rerouter;

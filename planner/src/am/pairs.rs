@@ -19,6 +19,8 @@
 //! iterates move little from one iteration to the next, so most
 //! iterations skip the sweep.
 
+use crate::crew::{Crew, Disjoint, share};
+
 /// Teams at least this large use the broad phase; below it all pairs are
 /// checked (sorting costs more than it saves).
 pub(crate) const BROAD_PHASE_MIN_ROBOTS: usize = 24;
@@ -64,11 +66,8 @@ fn instant(k: usize) -> u32 {
 /// The broad phase's working memory.
 #[derive(Debug, Clone, Default)]
 pub(crate) struct BroadPhase {
-    /// Per segment and robot: `[min, max]` per axis, grown by the robot's
-    /// share of the reach.
-    boxes: Vec<[[f64; 2]; 3]>,
-    /// Robot order of one segment's sweep.
-    order: Vec<usize>,
+    /// Each crew part's sweep.
+    parts: Vec<SweepPart>,
     /// Which pairs `(i, j)`, `i < j`, are candidates: bit `i * n + j`.
     found: Vec<u64>,
     /// Per pair bit of `found`, once set: its first and last overlapping
@@ -87,85 +86,120 @@ impl BroadPhase {
     /// `axes` axes) may come closer than `grow[i] + grow[j]` along every
     /// axis at some instant, sorted, with the instants they may at. `grow`
     /// (`[robot][axis]`, m) is each robot's share of the pair's reach.
+    #[cfg(test)]
     pub fn candidates(&mut self, pos: &[f64], axes: usize, n: usize, count: usize, grow: &[[f64; 3]]) -> &[Candidate] {
+        let covered = n >= KEEP_MIN_ROBOTS && self.still_covers(pos, axes, n, count, grow);
+        self.candidates_covered(&Crew::alone(), covered, pos, axes, n, count, grow)
+    }
+
+    /// [`Self::candidates`] where whether the pairs found last still cover
+    /// every robot ([`Self::still_covers`] of all of them, teams of
+    /// [`KEEP_MIN_ROBOTS`] or more) is known: `covered`.
+    #[allow(clippy::too_many_arguments, reason = "the positions' shape")]
+    pub fn candidates_covered(
+        &mut self,
+        crew: &Crew<'_>,
+        covered: bool,
+        pos: &[f64],
+        axes: usize,
+        n: usize,
+        count: usize,
+        grow: &[[f64; 3]],
+    ) -> &[Candidate] {
         if n < KEEP_MIN_ROBOTS {
-            self.sweep(pos, grow, axes, n, count);
-        } else if !self.still_covers(pos, axes, n, count, grow) {
+            self.sweep(crew, pos, grow, axes, n, count);
+        } else if !covered {
             let mut built = std::mem::take(&mut self.built);
             let mut built_grow = std::mem::take(&mut self.built_grow);
             built.clear();
             built.extend_from_slice(&pos[..axes * n * count]);
             built_grow.clear();
             built_grow.extend(grow.iter().map(|g| g.map(|x| x * (1.0 + SLACK))));
-            self.sweep(&built, &built_grow, axes, n, count);
+            self.sweep(crew, &built, &built_grow, axes, n, count);
             (self.built, self.built_grow) = (built, built_grow);
         }
+        &self.pairs
+    }
+
+    /// The pairs the last [`Self::candidates`] returned.
+    pub fn current(&self) -> &[Candidate] {
         &self.pairs
     }
 
     /// Whether the pairs found last still hold every pair whose boxes
     /// overlap now: each robot moved, along each axis, by at most what its
     /// built growth has to spare over its growth now.
+    #[cfg(test)]
     fn still_covers(&self, pos: &[f64], axes: usize, n: usize, count: usize, grow: &[[f64; 3]]) -> bool {
+        (0..n).all(|i| {
+            let rows: [&[f64]; 3] =
+                std::array::from_fn(
+                    |a| if a < axes { &pos[(a * n + i) * count..(a * n + i + 1) * count] } else { &[] },
+                );
+            self.still_covers_robot(axes, n, count, i, &rows, &grow[i])
+        })
+    }
+
+    /// [`Self::still_covers`] for robot `i` of `n`, its positions `rows`
+    /// (one per axis) and its growth `grow` now.
+    pub fn still_covers_robot(
+        &self,
+        axes: usize,
+        n: usize,
+        count: usize,
+        i: usize,
+        rows: &[&[f64]; 3],
+        grow: &[f64; 3],
+    ) -> bool {
         if self.built.len() != axes * n * count || self.built_grow.len() != n {
             return false;
         }
         (0..axes).all(|a| {
-            (0..n).all(|i| {
-                let range = (a * n + i) * count..(a * n + i + 1) * count;
-                let moved =
-                    pos[range.clone()].iter().zip(&self.built[range]).fold(0.0, |m: f64, (p, q)| m.max((p - q).abs()));
-                moved + grow[i][a] <= self.built_grow[i][a]
-            })
+            let built = &self.built[(a * n + i) * count..(a * n + i + 1) * count];
+            let moved = rows[a].iter().zip(built).fold(0.0, |m: f64, (p, q)| m.max((p - q).abs()));
+            moved + grow[a] <= self.built_grow[i][a]
         })
     }
 
     /// Finds the pairs whose boxes around `pos`, grown by `grow`, overlap in
-    /// some segment, and the instants of their first to last such segment.
-    fn sweep(&mut self, pos: &[f64], grow: &[[f64; 3]], axes: usize, n: usize, count: usize) {
+    /// some segment, and the instants of their first to last such segment:
+    /// the crew's parts sweep shares of the segments, each into its own
+    /// marks, merged after (bitwise or, first and last segment: the same
+    /// pairs for every crew size).
+    fn sweep(&mut self, crew: &Crew<'_>, pos: &[f64], grow: &[[f64; 3]], axes: usize, n: usize, count: usize) {
         let segments = count.div_ceil(SEGMENT).max(1);
-        self.segments.resize(n * n, [0; 2]);
-        self.boxes.clear();
-        self.boxes.resize(segments * n, [[f64::INFINITY, f64::NEG_INFINITY]; 3]);
-        for a in 0..axes {
-            for i in 0..n {
-                let series = &pos[(a * n + i) * count..(a * n + i + 1) * count];
-                for (s, chunk) in series.chunks(SEGMENT).enumerate() {
-                    let b = &mut self.boxes[s * n + i][a];
-                    for &x in chunk {
-                        b[0] = b[0].min(x);
-                        b[1] = b[1].max(x);
-                    }
-                    b[0] -= grow[i][a];
-                    b[1] += grow[i][a];
-                }
-            }
+        if self.parts.len() < crew.size() {
+            self.parts.resize_with(crew.size(), SweepPart::default);
         }
-        self.found.clear();
-        self.found.resize((n * n).div_ceil(64), 0);
-        for s in 0..segments {
-            let boxes = &self.boxes[s * n..(s + 1) * n];
-            self.order.clear();
-            self.order.extend(0..n);
-            self.order.sort_unstable_by(|&i, &j| boxes[i][0][0].total_cmp(&boxes[j][0][0]));
-            for (k, &i) in self.order.iter().enumerate() {
-                let bi = &boxes[i];
-                for &j in &self.order[k + 1..] {
-                    let bj = &boxes[j];
-                    if bj[0][0] > bi[0][1] {
-                        break;
-                    }
-                    if (1..axes).all(|a| bj[a][0] <= bi[a][1] && bi[a][0] <= bj[a][1]) {
-                        let bit = i.min(j) * n + i.max(j);
-                        let (word, mask) = (&mut self.found[bit / 64], 1 << (bit % 64));
-                        // Segments go in order: the first sets both ends.
-                        if *word & mask == 0 {
-                            self.segments[bit][0] = instant(s);
-                        }
-                        *word |= mask;
-                        self.segments[bit][1] = instant(s);
-                    }
+        let parts = Disjoint::new(&mut self.parts[..crew.size()]);
+        crew.run(&|part| {
+            // SAFETY: each part takes its own memory.
+            let mine = unsafe { parts.at(part) };
+            mine.found.clear();
+            mine.found.resize((n * n).div_ceil(64), 0);
+            mine.segments.resize(n * n, [0; 2]);
+            for s in share(part, crew.size(), segments) {
+                mine.sweep_segment(pos, grow, axes, n, count, s);
+            }
+        });
+        let (found, marks) = (&mut self.found, &mut self.segments);
+        found.clear();
+        found.resize((n * n).div_ceil(64), 0);
+        marks.resize(n * n, [0; 2]);
+        for part in &self.parts[..crew.size()] {
+            for (w, (&theirs, ours)) in part.found.iter().zip(found.iter_mut()).enumerate() {
+                let mut bits = theirs;
+                while bits != 0 {
+                    let bit = w * 64 + bits.trailing_zeros() as usize;
+                    let [first, last] = part.segments[bit];
+                    marks[bit] = if *ours & (1 << (bit % 64)) == 0 {
+                        [first, last]
+                    } else {
+                        [marks[bit][0].min(first), marks[bit][1].max(last)]
+                    };
+                    bits &= bits - 1;
                 }
+                *ours |= theirs;
             }
         }
         self.pairs.clear();
@@ -181,6 +215,65 @@ impl BroadPhase {
                     to: instant(((last + 1) * SEGMENT).min(count)),
                 });
                 bits &= bits - 1;
+            }
+        }
+    }
+}
+
+/// One crew part's sweep: its boxes and order for a segment, and the pairs
+/// it found in its segments.
+#[derive(Debug, Clone, Default)]
+struct SweepPart {
+    /// Per robot: `[min, max]` per axis, grown by the robot's share of the
+    /// reach (one segment).
+    boxes: Vec<[[f64; 2]; 3]>,
+    /// Robot order of the segment's sweep.
+    order: Vec<usize>,
+    /// Which pairs `(i, j)`, `i < j`, overlap in its segments: bit `i * n + j`.
+    found: Vec<u64>,
+    /// Per pair bit of `found`, once set: its first and last overlapping
+    /// segment among this part's (stale values where the bit is clear).
+    segments: Vec<[u32; 2]>,
+}
+
+impl SweepPart {
+    /// Marks the pairs whose boxes overlap in segment `s`.
+    fn sweep_segment(&mut self, pos: &[f64], grow: &[[f64; 3]], axes: usize, n: usize, count: usize, s: usize) {
+        let instants = s * SEGMENT..((s + 1) * SEGMENT).min(count);
+        self.boxes.clear();
+        self.boxes.extend((0..n).map(|i| {
+            std::array::from_fn(|a| {
+                if a >= axes {
+                    return [f64::INFINITY, f64::NEG_INFINITY];
+                }
+                let series = &pos[(a * n + i) * count..(a * n + i + 1) * count];
+                let (lo, hi) = series[instants.clone()]
+                    .iter()
+                    .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &x| (lo.min(x), hi.max(x)));
+                [lo - grow[i][a], hi + grow[i][a]]
+            })
+        }));
+        let boxes = &self.boxes;
+        self.order.clear();
+        self.order.extend(0..n);
+        self.order.sort_unstable_by(|&i, &j| boxes[i][0][0].total_cmp(&boxes[j][0][0]));
+        for (k, &i) in self.order.iter().enumerate() {
+            let bi = &boxes[i];
+            for &j in &self.order[k + 1..] {
+                let bj = &boxes[j];
+                if bj[0][0] > bi[0][1] {
+                    break;
+                }
+                if (1..axes).all(|a| bj[a][0] <= bi[a][1] && bi[a][0] <= bj[a][1]) {
+                    let bit = i.min(j) * n + i.max(j);
+                    let (word, mask) = (&mut self.found[bit / 64], 1 << (bit % 64));
+                    // A part's segments go in order: its first sets both ends.
+                    if *word & mask == 0 {
+                        self.segments[bit][0] = instant(s);
+                    }
+                    *word |= mask;
+                    self.segments[bit][1] = instant(s);
+                }
             }
         }
     }

@@ -107,22 +107,22 @@ impl Engine {
             None => self.smooth_start(problem, &b),
         };
         let margin = self.settings.margin;
-        let (chord, broad, two) = (self.settings.chord, self.settings.broad_phase, self.settings.two_threads);
+        let (chord, broad) = (self.settings.chord, self.settings.broad_phase);
         let shrink = [t.robot.radius, t.robot.radius, t.robot.half_height].map(|r| margin * r);
         Ok(Prepared {
             beta,
             target,
             cold,
-            constraint: Limits::new(problem, &self.grid, 1.0 + margin, shrink).with_rules(chord, broad, two),
+            constraint: Limits::new(problem, &self.grid, 1.0 + margin, shrink).with_rules(chord, broad),
             verify: Limits::new(problem, &self.dense, 1.0 + self.settings.verify_margin, [0.0; 3])
-                .with_rules(chord, broad, two),
+                .with_rules(chord, broad),
             verify_start: Limits::new(
                 problem,
                 &self.dense_start,
                 1.0 - FEASIBILITY_TOLERANCE,
                 [-FEASIBILITY_TOLERANCE * t.separation().0; 3],
             )
-            .with_rules(chord, broad, two),
+            .with_rules(chord, broad),
             boundary: b,
         })
     }

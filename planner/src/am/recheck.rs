@@ -89,7 +89,7 @@ impl Recheck {
         let parts = [(&times[..split], 1.0 - FEASIBILITY_TOLERANCE), (&times[split..], 1.0 + self.margin)];
         parts.into_iter().filter(|(t, _)| !t.is_empty()).all(|(t, scale)| {
             let grid = SampleGrid::new(plan.degree, t.iter().map(tau).collect());
-            let limits = Limits::at_times(&problem, t, scale, [0.0; 3]).with_rules(self.chord, false, false);
+            let limits = Limits::at_times(&problem, t, scale, [0.0; 3]).with_rules(self.chord, false);
             Projection::new(plan.dim, plan.robots, &grid).obstacles_clear(
                 plan.dim,
                 plan.robots,

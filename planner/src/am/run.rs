@@ -6,8 +6,9 @@ use std::time::Instant;
 
 use super::engine::{AmOutcome, AmState, Engine, EngineError, Residuals};
 use super::prepare::Prepared;
-use super::projection::{Projection, SampleGrid, TWO_THREADS_MIN_ROBOTS};
+use super::projection::{Projection, SampleGrid};
 use super::settings::Stop;
+use crate::crew::Crew;
 use crate::problem::Problem;
 
 /// Iterations between two budget checks (a clock read costs about as
@@ -18,6 +19,12 @@ const DEADLINE_CHECK_EVERY: usize = 4;
 /// the crowd of 256 robots, seed 26, verifies after 5,680 iterations in one
 /// attempt and in none of four attempts of 2,500 (docs/BENCHMARKS.md).
 pub const ATTEMPT_ITERATIONS_PER_ROBOT: usize = 25;
+
+/// Teams at least this large iterate on [`super::AmSettings::threads`]
+/// threads, at most one per this many robots; smaller ones alone (starting
+/// the threads costs more than they save). Two robot blocks of the
+/// projection.
+pub const CREW_MIN_ROBOTS: usize = 32;
 
 /// When a run must stop before its own stopping rules: a deadline
 /// ([`Stop::Deadline`]), a cancellation ([`Stop::Cancelled`]), both or
@@ -156,15 +163,10 @@ impl Engine {
     }
 
     fn run_capped(&self, prepared: &Prepared, state: AmState, cap: usize, budget: &Budget<'_>) -> AmOutcome {
-        let (dim, n) = (self.team.dim, self.team.robots);
-        let projection = Projection::new(dim, n, &self.grid);
-        if !(prepared.constraint.two_threads() && n >= TWO_THREADS_MIN_ROBOTS) {
-            return self.iterate(prepared, state, cap, budget, projection);
-        }
-        std::thread::scope(|scope| {
-            let projection = projection.with_helper(scope, dim, n, &self.grid, &prepared.constraint);
-            self.iterate(prepared, state, cap, budget, projection)
-        })
+        // One thread per CREW_MIN_ROBOTS robots at most: a step's blocks
+        // would not keep more busy.
+        let threads = self.settings.threads.min(self.team.robots / CREW_MIN_ROBOTS).max(1);
+        Crew::with(threads, |crew| self.iterate(prepared, state, cap, budget, crew))
     }
 
     /// The iterations of [`Self::run_capped`] with `projection`.
@@ -174,16 +176,17 @@ impl Engine {
         mut state: AmState,
         cap: usize,
         budget: &Budget<'_>,
-        mut projection: Projection,
+        crew: &Crew<'_>,
     ) -> AmOutcome {
         let (dim, n) = (self.team.dim, self.team.robots);
+        let mut projection = Projection::new(dim, n, &self.grid);
         let mut work = self.work();
         let mut verifier = None;
         let mut history = Vec::new();
         let mut iterations = 0;
         let s = &self.settings;
         loop {
-            let primal = projection.run(dim, n, &self.grid, &prepared.constraint, &state.xi);
+            let primal = projection.run(crew, dim, n, &self.grid, &prepared.constraint, &state.xi);
             let verifying = s.verify_every > 0;
             let due = primal <= s.tolerance || iterations % s.verify_every.max(1) == 0 || iterations >= cap;
             // Every update meets the boundary conditions; a given start
@@ -195,7 +198,7 @@ impl Engine {
                 && primal <= s.verify_below
                 && due
                 && acceptable()
-                && self.verify_with(verifier.get_or_insert_with(|| Verifier::new(self)), prepared, &state.xi)
+                && self.verify_with(verifier.get_or_insert_with(|| Verifier::new(self)), crew, prepared, &state.xi)
             {
                 Some(Stop::Verified)
             } else if iterations >= cap {
@@ -212,7 +215,7 @@ impl Engine {
                 return AmOutcome { state, iterations, attempts: 1, stop, primal, history };
             }
             let level = s.rho.level_at(iterations, self.levels.len());
-            let fixed_point = self.update(prepared, &mut state, level, &projection, &mut work);
+            let fixed_point = self.update(crew, prepared, &mut state, level, &projection, &mut work);
             if s.record_history {
                 history.push(Residuals { primal, fixed_point });
             }
@@ -223,7 +226,7 @@ impl Engine {
     /// The primal residual of `xi` (inflated sizes, constrained samples).
     pub fn primal_residual(&self, prepared: &Prepared, xi: &[f64]) -> f64 {
         let (dim, n) = (self.team.dim, self.team.robots);
-        Projection::new(dim, n, &self.grid).run(dim, n, &self.grid, &prepared.constraint, xi)
+        Projection::new(dim, n, &self.grid).run(&Crew::alone(), dim, n, &self.grid, &prepared.constraint, xi)
     }
 
     /// Whether `xi` keeps the true sizes and box on the dense grid: no
@@ -233,14 +236,14 @@ impl Engine {
     /// start, which may be in near-contact) are held to the success
     /// verdict's tolerance instead.
     pub fn verify(&self, prepared: &Prepared, xi: &[f64]) -> bool {
-        self.verify_with(&mut Verifier::new(self), prepared, xi)
+        self.verify_with(&mut Verifier::new(self), &Crew::alone(), prepared, xi)
     }
 
     /// [`Self::verify`] with a run's verification memory.
-    fn verify_with(&self, verifier: &mut Verifier, prepared: &Prepared, xi: &[f64]) -> bool {
+    fn verify_with(&self, verifier: &mut Verifier, crew: &Crew<'_>, prepared: &Prepared, xi: &[f64]) -> bool {
         let (dim, n) = (self.team.dim, self.team.robots);
         let clear = |projection: &mut Projection, grid: &SampleGrid, limits| {
-            grid.count() == 0 || projection.clear(dim, n, grid, limits, xi)
+            grid.count() == 0 || projection.clear(crew, dim, n, grid, limits, xi)
         };
         clear(&mut verifier.start, &self.dense_start, &prepared.verify_start)
             && clear(&mut verifier.dense, &self.dense, &prepared.verify)

@@ -114,11 +114,12 @@ pub struct AmSettings {
     /// of symmetric scenes such as antipodal swaps).
     #[serde(default)]
     pub veer: bool,
-    /// Optimiser only: teams of [`super::TWO_THREADS_MIN_ROBOTS`] robots or
-    /// more check half the broad phase's pairs on a helper thread that lives
-    /// for the run: the same iteration up to rounding.
-    #[serde(default)]
-    pub two_threads: bool,
+    /// Threads a run of a team of [`super::CREW_MIN_ROBOTS`] robots or more
+    /// iterates on (0 and 1: the calling thread alone), the calling one
+    /// among them: the same iterates, bit for bit, for every count. Not a
+    /// settings key of its own: the planner settings' `threads` sets it.
+    #[serde(skip)]
+    pub threads: usize,
 }
 
 impl AmSettings {
@@ -145,7 +146,7 @@ impl AmSettings {
             chord: true,
             broad_phase: true,
             veer: true,
-            two_threads: true,
+            threads: 0,
         }
     }
 
@@ -171,7 +172,7 @@ impl AmSettings {
             chord: true,
             broad_phase: true,
             veer: false,
-            two_threads: false,
+            threads: 0,
         }
     }
 

@@ -5,7 +5,8 @@
 
 use super::engine::{AmState, Engine, Residuals};
 use super::prepare::Prepared;
-use super::projection::Projection;
+use super::projection::{Projection, ROBOT_BLOCK};
+use crate::crew::{Crew, Disjoint};
 use crate::kkt::WORKSPACE_WEIGHT;
 use crate::linalg::{Accum, dot, gemm};
 
@@ -49,19 +50,24 @@ impl Stepper<'_> {
     pub fn step(&mut self, prepared: &Prepared, state: &mut AmState, level: usize) -> Residuals {
         let e = self.engine;
         let (dim, n) = (e.team.dim, e.team.robots);
-        let primal = self.projection.run(dim, n, &e.grid, &prepared.constraint, &state.xi);
+        let crew = Crew::alone();
+        let primal = self.projection.run(&crew, dim, n, &e.grid, &prepared.constraint, &state.xi);
         let level = level.min(e.levels.len() - 1);
-        let fixed_point = e.update(prepared, state, level, &self.projection, &mut self.work);
+        let fixed_point = e.update(&crew, prepared, state, level, &self.projection, &mut self.work);
         Residuals { primal, fixed_point }
     }
 }
 
-/// Buffers of the xi-step, each `[axis][robot][coef]`.
+/// Buffers of the xi-step: `[axis][robot][coef]` (`u`, `rhs`, `next`),
+/// `[axis][coef]` (`sum`, `mean`, `shift`), per robot block (`block_sq`).
 pub(super) struct Work {
-    g: Vec<f64>,
     u: Vec<f64>,
     rhs: Vec<f64>,
     next: Vec<f64>,
+    sum: Vec<f64>,
+    mean: Vec<f64>,
+    shift: Vec<f64>,
+    block_sq: Vec<f64>,
 }
 
 impl Engine {
@@ -99,13 +105,25 @@ impl Engine {
     /// Fresh buffers for the xi-step.
     pub(super) fn work(&self) -> Work {
         let len = self.coeff_len();
-        Work { g: vec![0.0; len], u: vec![0.0; len], rhs: vec![0.0; len], next: vec![0.0; len] }
+        let axes = self.team.dim.axes() * self.n_xi;
+        let blocks = self.team.robots.div_ceil(ROBOT_BLOCK);
+        Work {
+            u: vec![0.0; len],
+            rhs: vec![0.0; len],
+            next: vec![0.0; len],
+            sum: vec![0.0; axes],
+            mean: vec![0.0; axes],
+            shift: vec![0.0; axes],
+            block_sq: vec![0.0; blocks],
+        }
     }
 
-    /// Multiplier update and xi-step from the corrections of `projection`;
+    /// Multiplier update and xi-step from the corrections of `projection`
+    /// on `crew`, per robot block (the same numbers for every crew size);
     /// returns the fixed-point residual.
     pub(super) fn update(
         &self,
+        crew: &Crew<'_>,
         prepared: &Prepared,
         state: &mut AmState,
         level: usize,
@@ -115,64 +133,104 @@ impl Engine {
         let dim = self.team.dim.axes();
         let n = self.team.robots;
         let nx = self.n_xi;
-        let rows = dim * n;
         let lv = &self.levels[level];
         let rho = lv.rho;
-        // g = P^T (e - F xi): the corrections mapped back to coefficients.
-        projection.coefficients(&self.grid, rows, &mut w.g);
-        // lambda <- lambda - rho F^T r1 - rho G^T r2 = lambda + rho g
-        let mut lambda_sq = 0.0;
-        for (l, g) in state.lambda.iter_mut().zip(&w.g) {
-            let d = rho * g;
-            *l += d;
-            lambda_sq += d * d;
-        }
-        // rhs = c_lin + rho g + lambda + rho P^T P u, with
+        let nb = n.div_ceil(ROBOT_BLOCK);
         // u_i = (n + m + w) xi_i - sum_j xi_j (the structured F^T F + G^T G).
         let modes = n as f64 + self.obstacles as f64 + WORKSPACE_WEIGHT;
-        for ax in 0..dim {
-            let axis = ax * n * nx..(ax + 1) * n * nx;
-            let mut sum = vec![0.0; nx];
-            for row in state.xi[axis.clone()].chunks_exact(nx) {
+        w.sum.fill(0.0);
+        for (ax, sum) in w.sum.chunks_exact_mut(nx).enumerate() {
+            for row in state.xi[ax * n * nx..(ax + 1) * n * nx].chunks_exact(nx) {
                 for (m, v) in sum.iter_mut().zip(row) {
                     *m += v;
                 }
             }
-            for (u, x) in w.u[axis.clone()].chunks_exact_mut(nx).zip(state.xi[axis.clone()].chunks_exact(nx)) {
-                for c in 0..nx {
-                    u[c] = modes * x[c] - sum[c];
+        }
+        // g = P^T (e - F xi): the corrections mapped back to coefficients;
+        // lambda <- lambda - rho F^T r1 - rho G^T r2 = lambda + rho g;
+        // rhs = c_lin + rho g + lambda + rho P^T P u.
+        let g = projection.mapped();
+        let target = &prepared.target;
+        let xi = &state.xi;
+        {
+            let Work { u, rhs, sum, block_sq, .. } = &mut *w;
+            let sum = &*sum;
+            let (lambda, u, rhs, block_sq) =
+                (Disjoint::new(&mut state.lambda), Disjoint::new(u), Disjoint::new(rhs), Disjoint::new(block_sq));
+            crew.each(nb, &|_, b| {
+                let robots = b * ROBOT_BLOCK..((b + 1) * ROBOT_BLOCK).min(n);
+                let mut lambda_sq = 0.0;
+                for ax in 0..dim {
+                    let rows = (ax * n + robots.start) * nx..(ax * n + robots.end) * nx;
+                    // SAFETY: each block's rows belong to one part.
+                    let (lambda, u, rhs) =
+                        unsafe { (lambda.range(rows.clone()), u.range(rows.clone()), rhs.range(rows.clone())) };
+                    for (l, g) in lambda.iter_mut().zip(&g[rows.clone()]) {
+                        let d = rho * g;
+                        *l += d;
+                        lambda_sq += d * d;
+                    }
+                    let sum = &sum[ax * nx..(ax + 1) * nx];
+                    for (u, x) in u.chunks_exact_mut(nx).zip(xi[rows.clone()].chunks_exact(nx)) {
+                        for c in 0..nx {
+                            u[c] = modes * x[c] - sum[c];
+                        }
+                    }
+                    // Two loops rather than a bounds check per element:
+                    // the empty target's masked loads cost the optimiser
+                    // 7% of an iteration at 256 robots on these hosts.
+                    let moves = rhs.iter_mut().zip(&g[rows.clone()]).zip(&*lambda);
+                    if target.is_empty() {
+                        moves.for_each(|((r, g), l)| *r = rho * g + l);
+                    } else {
+                        moves.zip(&target[rows]).for_each(|(((r, g), l), t)| *r = t + rho * g + l);
+                    }
+                    gemm(rhs, u, &lv.rho_gram, robots.len(), nx, nx, Accum::Add);
                 }
-            }
+                // SAFETY: as above.
+                unsafe { *block_sq.at(b) = lambda_sq };
+            });
         }
-        // Two loops rather than a bounds check per element: the empty
-        // target's masked loads cost the optimiser 7% of an iteration at
-        // 256 robots on these hosts.
-        let moves = w.rhs.iter_mut().zip(&w.g).zip(&state.lambda);
-        if prepared.target.is_empty() {
-            moves.for_each(|((r, g), l)| *r = rho * g + l);
-        } else {
-            moves.zip(&prepared.target).for_each(|(((r, g), l), t)| *r = t + rho * g + l);
-        }
-        gemm(&mut w.rhs, &w.u, &lv.rho_gram, rows, nx, nx, Accum::Add);
+        let lambda_sq: f64 = w.block_sq.iter().sum();
         // xi_i = K11_diff rhs_i + (K11_mean - K11_diff) rhs_mean + beta_i (K11 symmetric).
-        w.next.copy_from_slice(&prepared.beta[level]);
-        for ax in 0..dim {
-            let axis = ax * n * nx..(ax + 1) * n * nx;
-            let mut mean = vec![0.0; nx];
-            for row in w.rhs[axis.clone()].chunks_exact(nx) {
+        w.mean.fill(0.0);
+        for (ax, mean) in w.mean.chunks_exact_mut(nx).enumerate() {
+            for row in w.rhs[ax * n * nx..(ax + 1) * n * nx].chunks_exact(nx) {
                 for (m, v) in mean.iter_mut().zip(row) {
                     *m += v / n as f64;
                 }
             }
-            let shift: Vec<f64> = lv.mean_minus_diff.chunks_exact(nx).map(|row| dot(row, &mean)).collect();
-            for row in w.next[axis].chunks_exact_mut(nx) {
-                for (x, s) in row.iter_mut().zip(&shift) {
-                    *x += s;
-                }
+        }
+        for (shift, mean) in w.shift.chunks_exact_mut(nx).zip(w.mean.chunks_exact(nx)) {
+            for (s, row) in shift.iter_mut().zip(lv.mean_minus_diff.chunks_exact(nx)) {
+                *s = dot(row, mean);
             }
         }
-        gemm(&mut w.next, &w.rhs, lv.kkt.diff().k11(), rows, nx, nx, Accum::Add);
-        let xi_sq: f64 = state.xi.iter().zip(&w.next).map(|(a, b)| (a - b) * (a - b)).sum();
+        {
+            let Work { rhs, next, shift, block_sq, .. } = &mut *w;
+            let (rhs, shift, beta) = (&*rhs, &*shift, &prepared.beta[level]);
+            let (next, block_sq) = (Disjoint::new(next), Disjoint::new(block_sq));
+            crew.each(nb, &|_, b| {
+                let robots = b * ROBOT_BLOCK..((b + 1) * ROBOT_BLOCK).min(n);
+                let mut xi_sq = 0.0;
+                for ax in 0..dim {
+                    let rows = (ax * n + robots.start) * nx..(ax * n + robots.end) * nx;
+                    // SAFETY: each block's rows belong to one part.
+                    let next = unsafe { next.range(rows.clone()) };
+                    next.copy_from_slice(&beta[rows.clone()]);
+                    for row in next.chunks_exact_mut(nx) {
+                        for (x, s) in row.iter_mut().zip(&shift[ax * nx..(ax + 1) * nx]) {
+                            *x += s;
+                        }
+                    }
+                    gemm(next, &rhs[rows.clone()], lv.kkt.diff().k11(), robots.len(), nx, nx, Accum::Add);
+                    xi_sq += xi[rows].iter().zip(&*next).map(|(a, b)| (a - b) * (a - b)).sum::<f64>();
+                }
+                // SAFETY: as above.
+                unsafe { *block_sq.at(b) = xi_sq };
+            });
+        }
+        let xi_sq: f64 = w.block_sq.iter().sum();
         std::mem::swap(&mut state.xi, &mut w.next);
         xi_sq.sqrt() + lambda_sq.sqrt()
     }

@@ -56,7 +56,7 @@ pub(super) struct HeaderFacts<'a> {
 }
 
 pub(super) fn header(f: &HeaderFacts) -> String {
-    let optimiser = f.settings.optimiser;
+    let optimiser = f.settings.optimiser();
     let pipeline = &f.settings.learned;
     let settle = match pipeline.settle {
         Settle::FirstVerified => {
@@ -98,7 +98,7 @@ pub(super) fn header(f: &HeaderFacts) -> String {
          wall-clock times per instance.\n\n\
          Methods: **baseline** is the from-scratch AM optimiser (smoothness cost, routed cold start, up to {} \
          restarts sharing an iteration cap of {}, fewer where that leaves an attempt under {} iterations per robot; \
-         its robot pairs on two threads from {} robots); **flowopt** is the learned pipeline ({} flow candidates in {} \
+         on {} thread(s) from {} robots, the same plans for every count); **flowopt** is the learned pipeline ({} flow candidates in {} \
          {:?} steps without obstacles, {} in {} with, {reroute}top {} by primal residual, {init}, safety filter on {} thread(s) without obstacles and {} with {metric} \
          with the penalty starting at {} and doubling every {} iterations up to {}, cap {}, {settle}; up to {} rounds of \
          sampling and refining while none verifies); **flow-no-init** is the same with the safety filter \
@@ -119,7 +119,8 @@ pub(super) fn header(f: &HeaderFacts) -> String {
         optimiser.restarts,
         optimiser.max_iterations,
         flowopt_planner::am::ATTEMPT_ITERATIONS_PER_ROBOT,
-        flowopt_planner::am::TWO_THREADS_MIN_ROBOTS,
+        f.settings.threads(),
+        flowopt_planner::am::CREW_MIN_ROBOTS,
         pipeline.candidates,
         pipeline.flow_steps,
         pipeline.solver,

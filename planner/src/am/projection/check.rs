@@ -125,38 +125,69 @@ impl Check<'_> {
     }
 
     /// Pushes apart every violating pair of `pairs` (`i < j`, in order),
-    /// adding to `corr` and marking `touched`; returns the sum of `||c||^2`.
+    /// adding to `corr`, marking `touched` and handing each pair's
+    /// `||c||^2` to `add(i, sum)`: the same numbers, in the same order, as
+    /// [`Self::hits`] of the pairs added one after the other.
     pub(super) fn push<const D: usize>(
         &self,
         pairs: impl Iterator<Item = Candidate>,
         scratch: &mut Scratch,
         corr: &mut [f64],
         touched: &mut [bool],
-    ) -> f64 {
+        mut add: impl FnMut(usize, f64),
+    ) {
         let (count, inv, sep) = (self.count, &self.inv, &self.limits.robot_sep);
         let stride = self.n * count;
-        let mut sum = 0.0;
         for pair in pairs {
             if !self.violates::<D>(pair, scratch) {
                 continue;
             }
             let (i, j) = (pair.i as usize, pair.j as usize);
             let (pi, pj) = (robot_rows::<D>(self.pos, self.n, count, i), robot_rows::<D>(self.pos, self.n, count, j));
-            touched[i] = true;
-            touched[j] = true;
+            let mut sum = 0.0;
             for k in self.instants(pair) {
                 let Some(c) = push::<D>(&pi, &pj, k, inv, sep, scratch.target[k], (i, j)) else {
                     continue;
                 };
+                touched[i] = true;
+                touched[j] = true;
                 for a in 0..D {
                     corr[a * stride + i * count + k] += c[a];
                     corr[a * stride + j * count + k] -= c[a];
                     sum += c[a] * c[a];
                 }
             }
+            add(i, sum);
         }
-        sum
     }
+
+    /// The corrections of `pair`, if it violates at any of its instants,
+    /// appended to `hits` instant by instant: `+c` for `i`, `-c` for `j`.
+    pub(super) fn hits<const D: usize>(&self, pair: Candidate, scratch: &mut Scratch, hits: &mut Vec<Hit>) {
+        if !self.violates::<D>(pair, scratch) {
+            return;
+        }
+        let (i, j) = (pair.i as usize, pair.j as usize);
+        let (pi, pj) =
+            (robot_rows::<D>(self.pos, self.n, self.count, i), robot_rows::<D>(self.pos, self.n, self.count, j));
+        for k in self.instants(pair) {
+            if let Some(c) = push::<D>(&pi, &pj, k, &self.inv, &self.limits.robot_sep, scratch.target[k], (i, j)) {
+                let mut c3 = [0.0; 3];
+                c3[..D].copy_from_slice(&c);
+                hits.push(Hit { i: pair.i, j: pair.j, k: k as u32, c: c3 });
+            }
+        }
+    }
+}
+
+/// One violating pair's correction at one instant: `+c` for robot `i`,
+/// `-c` for robot `j` (the axes past the team's dimension zero).
+#[derive(Debug, Clone, Copy)]
+pub(super) struct Hit {
+    pub(super) i: u32,
+    pub(super) j: u32,
+    pub(super) k: u32,
+    pub(super) c: [f64; 3],
 }
 
 /// Robot `i`'s rows of `values` (`[axis][robot][count]`, `n` robots), one
@@ -173,28 +204,20 @@ pub(super) fn all_pairs(n: usize, count: usize) -> impl Iterator<Item = Candidat
     (0..n as u32).flat_map(move |i| (i + 1..n as u32).map(move |j| Candidate::whole(i, j, count)))
 }
 
-/// Each of `n` robots' largest move between neighbouring instants, scaled
-/// by the robot separations of `limits`, into `out` (zeros without the
-/// chord inflation).
-pub(super) fn robot_steps(pos: &[f64], axes: usize, n: usize, count: usize, limits: &Limits, out: &mut Vec<f64>) {
-    out.clear();
-    if !limits.chord {
-        out.resize(n, 0.0);
-        return;
-    }
-    let inv = limits.robot_sep.map(|s| 1.0 / (s * s));
-    out.extend((0..n).map(|i| {
-        let mut largest: f64 = 0.0;
-        for k in 1..count {
-            let mut s = 0.0;
-            for (a, inv) in inv.iter().enumerate().take(axes) {
-                let x = &pos[(a * n + i) * count..(a * n + i + 1) * count];
-                s += (x[k] - x[k - 1]).powi(2) * inv;
-            }
-            largest = largest.max(s);
+/// Robot `i`'s largest move between neighbouring instants, scaled by
+/// `inv` (the inverse squared separations), of positions `rows` (its row
+/// per axis).
+pub(super) fn robot_step<const D: usize>(rows: &[&[f64]; D], inv: &[f64; 3]) -> f64 {
+    let count = rows[0].len();
+    let mut largest: f64 = 0.0;
+    for k in 1..count {
+        let mut s = 0.0;
+        for a in 0..D {
+            s += (rows[a][k] - rows[a][k - 1]).powi(2) * inv[a];
         }
-        largest.sqrt()
-    }));
+        largest = largest.max(s);
+    }
+    largest.sqrt()
 }
 
 /// The largest move between neighbouring instants of each of `rows`
@@ -258,24 +281,10 @@ pub(super) fn push<const D: usize>(
     Some(c)
 }
 
-/// Each robot's share of the broad phase's reach per axis, into `grow`:
-/// a pair's chord inflation is at most `sqrt(1 + (s_i + s_j)^2 / 4) <=
-/// 1 + (s_i + s_j) / 2` separations, `s` the robots' largest scaled moves
-/// between instants (`steps`), so robot `i`'s share is `(1 + s_i) / 2`.
-pub(super) fn reach_shares<'a>(steps: &[f64], sep: &[f64; 3], grow: &'a mut Vec<[f64; 3]>) -> &'a [[f64; 3]] {
-    grow.clear();
-    grow.extend(steps.iter().map(|s| sep.map(|x| x * 0.5 * (1.0 + s))));
-    grow
-}
-
-/// Zeroes the rows (`[axis][robot][count]`) of the robots `touched` marks,
-/// and the marks: the rows of unmarked robots are zero already, so this
-/// clears `corr` at a fraction of the memory traffic.
-pub(super) fn clear_touched(corr: &mut [f64], touched: &mut [bool], count: usize) {
-    for block in corr.chunks_exact_mut(touched.len() * count) {
-        for (row, _) in block.chunks_exact_mut(count).zip(touched.iter()).filter(|(_, t)| **t) {
-            row.fill(0.0);
-        }
-    }
-    touched.fill(false);
+/// A robot's share of the broad phase's reach per axis: a pair's chord
+/// inflation is at most `sqrt(1 + (s_i + s_j)^2 / 4) <= 1 + (s_i + s_j) / 2`
+/// separations, `s` the robots' largest scaled moves between instants
+/// (`step`), so robot `i`'s share is `(1 + s_i) / 2`.
+pub(super) fn reach_share(step: f64, sep: &[f64; 3]) -> [f64; 3] {
+    sep.map(|x| x * 0.5 * (1.0 + step))
 }

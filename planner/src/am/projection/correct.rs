@@ -1,135 +1,345 @@
-//! Every correction of one projection: the robot pairs (all, or the broad
-//! phase's candidates, half of them on the helper where there is one), the
-//! obstacles, the box.
+//! The steps of one projection on a crew: positions per robot block, the
+//! robot pairs (every pair, or the broad phase's candidates) checked in
+//! shares and their corrections added in pair order, then the obstacles,
+//! the box and the mapping to coefficients per robot block.
+//!
+//! Every correction lands in the same order whatever the crew's size: a
+//! pair's hits in candidate order (one thread adds them), a robot's
+//! obstacle corrections obstacle by obstacle, then its box clamp; sums
+//! are taken per robot block and added in block order.
 
-use super::super::pairs::{BROAD_PHASE_MIN_ROBOTS, Candidate};
-use super::check::{Check, all_pairs, largest_steps, largest_target, push, reach_shares, robot_rows, robot_steps};
-use super::helper::receive;
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+
+use super::super::pairs::{BROAD_PHASE_MIN_ROBOTS, Candidate, KEEP_MIN_ROBOTS};
+use super::check::{Check, all_pairs, largest_steps, largest_target, push, reach_share, robot_rows, robot_step};
+use super::grid::SampleGrid;
 use super::limits::Limits;
-use super::memory::{Projection, Stage};
+use super::memory::{BlockSums, PartMemory, Projection, ROBOT_BLOCK};
+use crate::crew::{Crew, Disjoint, share};
+use crate::linalg::{Accum, gemm};
+
+/// Rows `[axis][robot]` of robots `robots` on axis `a`, `n` robots, each
+/// `width` long: the range of the flat buffer.
+fn block_rows(a: usize, n: usize, robots: &std::ops::Range<usize>, width: usize) -> std::ops::Range<usize> {
+    (a * n + robots.start) * width..(a * n + robots.end) * width
+}
+
+/// The robots of block `b` of `n`.
+fn block_robots(b: usize, n: usize) -> std::ops::Range<usize> {
+    b * ROBOT_BLOCK..((b + 1) * ROBOT_BLOCK).min(n)
+}
+
+/// Candidates a crew part checks at a time (it takes the next chunk left,
+/// so parts whose pairs violate more take fewer).
+const PAIR_CHUNK: usize = 64;
 
 impl Projection {
-    /// Inter-robot corrections for every pair `i < j` (every candidate of
-    /// the broad phase, in the same order): where the scaled distance `r` is
-    /// below its target `t` (1, or more with the chord inflation) the offset
-    /// is pushed to it, `c = d (t/r - 1)`, added to `i` and taken from `j`.
-    /// Returns the sum of `||c||^2`, and, where the box corrections were
-    /// made while the helper checked its half, theirs.
-    pub(super) fn pairs<const D: usize>(&mut self, n: usize, count: usize, limits: &Limits) -> (f64, Option<f64>) {
+    /// Positions of `xi` on `grid`, per robot block: each robot's largest
+    /// scaled move and share of the broad phase's reach, each block's
+    /// largest move per axis; last iteration's corrections cleared.
+    pub(super) fn evaluate<const D: usize>(
+        &mut self,
+        crew: &Crew<'_>,
+        n: usize,
+        grid: &SampleGrid,
+        limits: &Limits,
+        xi: &[f64],
+    ) {
+        let count = grid.count();
+        let n_xi = grid.pt.len() / count;
+        let blocks = n.div_ceil(ROBOT_BLOCK);
         let sep = limits.robot_sep;
         let inv = sep.map(|s| 1.0 / (s * s));
-        let Projection { pos, corr, touched, scratch, broad, steps, grow, helper, first, culprit, .. } = self;
-        robot_steps(pos, D, n, count, limits, steps);
-        let check = Check { pos, steps, n, count, limits, inv };
-        let broad_phase = limits.broad_phase && n >= BROAD_PHASE_MIN_ROBOTS;
-        if *first {
-            if culprit.is_some_and(|(i, j)| check.violates::<D>(Candidate::whole(i, j, count), scratch)) {
-                return (f64::INFINITY, None);
+        let chord = limits.chord;
+        let keep = limits.broad_phase && n >= BROAD_PHASE_MIN_ROBOTS.max(KEEP_MIN_ROBOTS);
+        let Projection { pos, corr, touched, steps, grow, blocks: sums, broad, .. } = self;
+        let broad = &*broad;
+        let (pos, corr, touched) = (Disjoint::new(pos), Disjoint::new(corr), Disjoint::new(touched));
+        let (steps, grow, sums) = (Disjoint::new(steps), Disjoint::new(grow), Disjoint::new(sums));
+        crew.each(blocks, &|_, b| {
+            let robots = block_robots(b, n);
+            // SAFETY: each block's rows and robots belong to one part.
+            let touched = unsafe { touched.range(robots.clone()) };
+            let mut largest = [0.0; 3];
+            for a in 0..D {
+                let (rows, coefs) = (block_rows(a, n, &robots, count), block_rows(a, n, &robots, n_xi));
+                // SAFETY: as above.
+                let (pos, corr) = unsafe { (pos.range(rows.clone()), corr.range(rows)) };
+                gemm(pos, &xi[coefs], &grid.pt, robots.len(), n_xi, count, Accum::Replace);
+                for (row, t) in corr.chunks_exact_mut(count).zip(touched.iter()) {
+                    if *t {
+                        row.fill(0.0);
+                    }
+                }
+                if chord {
+                    largest[a] = largest_steps(pos, 1, robots.len(), count)[0];
+                }
             }
-            let found = if broad_phase {
-                let candidates = broad.candidates(pos, D, n, count, reach_shares(steps, &sep, grow));
-                candidates.iter().copied().find(|&pair| check.violates::<D>(pair, scratch))
-            } else {
-                all_pairs(n, count).find(|&pair| check.violates::<D>(pair, scratch))
-            };
-            *culprit = found.map(|c| (c.i, c.j));
-            return (if culprit.is_some() { f64::INFINITY } else { 0.0 }, None);
-        }
-        if !broad_phase {
-            return (check.push::<D>(all_pairs(n, count), scratch, corr, touched), None);
-        }
-        let Some(link) = helper.as_mut().filter(|h| h.stage == Stage::Evaluating) else {
-            let candidates = broad.candidates(pos, D, n, count, reach_shares(steps, &sep, grow));
-            return (check.push::<D>(candidates.iter().copied(), scratch, corr, touched), None);
-        };
-        // The box while the helper finds the pairs: the same corrections,
-        // added in another order; the helper checks the second half of the
-        // pairs into its own corrections: the same iteration up to rounding.
-        let box_sq = clamp_to_box(pos, corr, touched, limits, D, count);
-        let Some(mine) = receive(&link.firsts) else {
-            // The helper is gone (it panicked; the scope reports it): this
-            // thread checks every pair, for the rest of the run too.
-            *helper = None;
-            let candidates = broad.candidates(pos, D, n, count, reach_shares(steps, &sep, grow));
-            return (check.push::<D>(candidates.iter().copied(), scratch, corr, touched), Some(box_sq));
-        };
-        let sum = check.push::<D>(mine.iter().copied(), scratch, corr, touched);
-        link.spare_pairs = mine;
-        link.stage = Stage::Checking;
-        (sum, Some(box_sq))
+            touched.fill(false);
+            let mut covered = keep;
+            for i in robots.clone() {
+                // SAFETY: the block's rows were written above by this part.
+                let rows: [&[f64]; D] =
+                    std::array::from_fn(|a| unsafe { &*pos.range((a * n + i) * count..(a * n + i + 1) * count) });
+                let step = if chord { robot_step::<D>(&rows, &inv) } else { 0.0 };
+                let share = reach_share(step, &sep);
+                if covered {
+                    let rows: [&[f64]; 3] = std::array::from_fn(|a| if a < D { rows[a] } else { &[] });
+                    covered = broad.still_covers_robot(D, n, count, i, &rows, &share);
+                }
+                // SAFETY: robot `i` belongs to this part's block.
+                unsafe {
+                    *steps.at(i) = step;
+                    *grow.at(i) = share;
+                }
+            }
+            unsafe { *sums.at(b) = BlockSums { largest, covered, ..BlockSums::default() } };
+        });
     }
 
-    /// Robot-obstacle corrections: where robot `i` is inside the (scaled)
-    /// obstacle `m` at an instant, its position is pushed to the surface.
-    pub(super) fn obstacles<const D: usize>(&mut self, n: usize, count: usize, limits: &Limits) -> f64 {
-        if limits.obstacle_sep.is_empty() {
-            return 0.0;
+    /// The pairs to check: the broad phase's candidates (teams of
+    /// [`BROAD_PHASE_MIN_ROBOTS`] or more where `limits` ask for it), else
+    /// every pair.
+    pub(super) fn candidates<const D: usize>(
+        &mut self,
+        crew: &Crew<'_>,
+        n: usize,
+        count: usize,
+        limits: &Limits,
+    ) -> usize {
+        if limits.broad_phase && n >= BROAD_PHASE_MIN_ROBOTS {
+            // Whether every robot stays within the kept boxes was found per
+            // block with the positions.
+            let covered = self.blocks[..n.div_ceil(ROBOT_BLOCK)].iter().all(|b| b.covered);
+            return self.broad.candidates_covered(crew, covered, &self.pos, D, n, count, &self.grow).len();
         }
-        let stride = n * count;
-        let Projection { pos, corr, touched, scratch, first, .. } = self;
-        let robot_steps = if limits.chord { largest_steps(pos, D, n, count) } else { [0.0; 3] };
-        let mut sum = 0.0;
-        for (m, sep) in limits.obstacle_sep.iter().enumerate() {
-            // The instants the obstacle is kept clear at (a moving one's
-            // prediction may end before the grid does).
-            let until = limits.until[m];
-            if until == 0 {
-                continue;
+        let pairs = n * n.saturating_sub(1) / 2;
+        if self.all.len() != pairs || self.all.first().is_some_and(|c| c.to as usize != count) {
+            self.all.clear();
+            self.all.extend(all_pairs(n, count));
+        }
+        pairs
+    }
+
+    /// Checks the candidates, [`PAIR_CHUNK`] at a time, each part taking
+    /// the next chunk left: alone, adding the corrections as it goes (and
+    /// their `||c||^2` to the blocks' sums); on a crew, each part's hits in
+    /// its memory and each chunk's place among them in `spans`
+    /// ([`Self::per_block`] adds them in candidate order). Stopping at the
+    /// first violation, the violating pair a part found instead.
+    pub(super) fn check_pairs<const D: usize>(
+        &mut self,
+        crew: &Crew<'_>,
+        n: usize,
+        count: usize,
+        limits: &Limits,
+        broad: bool,
+    ) {
+        let inv = limits.robot_sep.map(|s| 1.0 / (s * s));
+        let Projection { pos, corr, touched, steps, parts, broad: phase, all, first, spans, blocks, .. } = self;
+        let candidates: &[Candidate] = if broad { phase.current() } else { all };
+        let check = Check { pos, steps, n, count, limits, inv };
+        let first = *first;
+        if crew.size() == 1 {
+            let PartMemory { scratch, found, .. } = &mut parts[0];
+            if first {
+                *found = candidates.iter().copied().find(|&pair| check.violates::<D>(pair, scratch));
+            } else {
+                let add = |i: usize, sum: f64| blocks[i / ROBOT_BLOCK].pair_sq += sum;
+                check.push::<D>(candidates.iter().copied(), scratch, corr, touched, add);
             }
+            return;
+        }
+        let chunks = candidates.len().div_ceil(PAIR_CHUNK);
+        spans.resize(chunks, [0; 3]);
+        let next = AtomicUsize::new(0);
+        let found = AtomicBool::new(false);
+        let (parts, spans) = (Disjoint::new(parts), Disjoint::new(spans));
+        crew.run(&|part| {
+            // SAFETY: each part takes its own memory, each chunk one part.
+            let PartMemory { scratch, hits, found: mine } = unsafe { parts.at(part) };
+            hits.clear();
+            *mine = None;
+            loop {
+                let chunk = next.fetch_add(1, Ordering::Relaxed);
+                if chunk >= chunks || (first && found.load(Ordering::Relaxed)) {
+                    break;
+                }
+                let pairs = &candidates[chunk * PAIR_CHUNK..((chunk + 1) * PAIR_CHUNK).min(candidates.len())];
+                let start = hits.len();
+                for &pair in pairs {
+                    if !first {
+                        check.hits::<D>(pair, scratch, hits);
+                    } else if check.violates::<D>(pair, scratch) {
+                        *mine = Some(pair);
+                        found.store(true, Ordering::Relaxed);
+                        break;
+                    }
+                }
+                // SAFETY: as above.
+                unsafe { *spans.at(chunk) = [part as u32, start as u32, hits.len() as u32] };
+            }
+        });
+        // Any part may take every hit next time: room for all of them in
+        // each, so that warm iterations do not allocate whichever part is
+        // faster.
+        let parts = &mut self.parts[..crew.size()];
+        let total: usize = parts.iter().map(|p| p.hits.len()).sum();
+        for part in parts {
+            part.hits.reserve(total.saturating_sub(part.hits.len()));
+        }
+    }
+
+    /// Per robot block: on a crew, the pairs' hits on its robots in
+    /// candidate order; the obstacle corrections, the box clamp and (unless
+    /// stopping at the first violation) the corrections mapped to
+    /// coefficients; the sums in [`BlockSums`].
+    pub(super) fn per_block<const D: usize>(&mut self, crew: &Crew<'_>, n: usize, grid: &SampleGrid, limits: &Limits) {
+        let count = grid.count();
+        let n_xi = grid.pt.len() / count;
+        let blocks = n.div_ceil(ROBOT_BLOCK);
+        let largest =
+            self.blocks[..blocks].iter().fold([0.0f64; 3], |m, b| std::array::from_fn(|a| m[a].max(b.largest[a])));
+        self.obstacle_bounds.clear();
+        self.obstacle_bounds.extend(limits.obstacle_sep.iter().enumerate().map(|(m, sep)| {
             let inv = sep.map(|s| 1.0 / (s * s));
-            let rows = &limits.tracks[m * D * count..(m + 1) * D * count];
-            let track = robot_rows::<D>(rows, 1, count, 0);
-            let bound = limits.chord.then(|| largest_target(&robot_steps, &largest_steps(rows, D, 1, count), &inv));
-            for i in 0..n {
-                let pi = robot_rows::<D>(pos, n, count, i);
-                if !scratch.violated::<D>(&pi, &track, &inv, bound, 0..until) {
-                    continue;
+            let track = &limits.tracks[m * D * count..(m + 1) * D * count];
+            limits.chord.then(|| largest_target(&largest, &largest_steps(track, D, 1, count), &inv))
+        }));
+        let Projection { pos, corr, mapped, touched, parts, blocks: sums, obstacle_bounds, first, spans, .. } = self;
+        let (first, pos, bounds, spans) = (*first, &*pos, &*obstacle_bounds, &*spans);
+        let (corr, mapped, touched) = (Disjoint::new(corr), Disjoint::new(mapped), Disjoint::new(touched));
+        let (parts, sums) = (Disjoint::new(parts), Disjoint::new(sums));
+        crew.run(&|part| {
+            // SAFETY: each part takes its own memory, each block's rows and
+            // robots belong to one part.
+            let mine = share(part, crew.size(), blocks);
+            if crew.size() > 1 && !first {
+                // SAFETY: as above; the hits are read only.
+                let hits = |p: usize| unsafe { &*parts.at(p).hits };
+                add_hits::<D>(
+                    spans,
+                    hits,
+                    n,
+                    count,
+                    block_robots(mine.start, n).start..block_robots(mine.end, n).start,
+                    &corr,
+                    &touched,
+                    &sums,
+                );
+            }
+            let scratch = unsafe { &mut parts.at(part).scratch };
+            for b in mine {
+                let robots = block_robots(b, n);
+                let touched = unsafe { touched.range(robots.clone()) };
+                let mut rows: [&mut [f64]; D] =
+                    std::array::from_fn(|a| unsafe { corr.range(block_rows(a, n, &robots, count)) });
+                let sums = unsafe { sums.at(b) };
+                let (mut obstacle_sq, mut box_sq) = (0.0, 0.0);
+                for (r, i) in robots.clone().enumerate() {
+                    let pi = robot_rows::<D>(pos, n, count, i);
+                    for (m, sep) in limits.obstacle_sep.iter().enumerate() {
+                        // The instants the obstacle is kept clear at (a moving
+                        // one's prediction may end before the grid does).
+                        let until = limits.until[m];
+                        let inv = sep.map(|s| 1.0 / (s * s));
+                        let track = robot_rows::<D>(&limits.tracks[m * D * count..(m + 1) * D * count], 1, count, 0);
+                        if until == 0 || !scratch.violated::<D>(&pi, &track, &inv, bounds[m], 0..until) {
+                            continue;
+                        }
+                        if first {
+                            sums.violated = true;
+                            return;
+                        }
+                        touched[r] = true;
+                        for k in 0..until {
+                            let Some(c) = push::<D>(&pi, &track, k, &inv, sep, scratch.target[k], (i, m)) else {
+                                continue;
+                            };
+                            for a in 0..D {
+                                rows[a][r * count + k] += c[a];
+                                obstacle_sq += c[a] * c[a];
+                            }
+                        }
+                    }
                 }
-                if *first {
-                    return f64::INFINITY;
+                for (a, axis) in rows.iter_mut().enumerate() {
+                    let (lo, hi) = (limits.lo[a], limits.hi[a]);
+                    let positions = &pos[block_rows(a, n, &robots, count)];
+                    for ((row, p), t) in
+                        axis.chunks_exact_mut(count).zip(positions.chunks_exact(count)).zip(touched.iter_mut())
+                    {
+                        let mut any = false;
+                        for (c, p) in row.iter_mut().zip(p) {
+                            let d = p.clamp(lo, hi) - p;
+                            *c += d;
+                            box_sq += d * d;
+                            any |= d != 0.0;
+                        }
+                        *t |= any;
+                    }
+                    if !first {
+                        // SAFETY: as above.
+                        let out = unsafe { mapped.range(block_rows(a, n, &robots, n_xi)) };
+                        grid.to_coefficients(axis, robots.len(), out);
+                    }
                 }
-                touched[i] = true;
-                for k in 0..until {
-                    let Some(c) = push::<D>(&pi, &track, k, &inv, sep, scratch.target[k], (i, m)) else {
-                        continue;
-                    };
+                (sums.obstacle_sq, sums.box_sq) = (obstacle_sq, box_sq);
+            }
+        });
+    }
+}
+
+/// Adds the hits of the chunks `spans` (of the parts' hit lists `hits`) on
+/// robots `robots` to their corrections, in candidate order: `+c` to `i`,
+/// `-c` to `j`, each pair's `||c||^2` to the sums of `i`'s block (as
+/// [`super::check::Check::push`] adds them). The caller owns those robots'
+/// rows, marks and blocks.
+#[allow(clippy::too_many_arguments, reason = "the step's shared buffers")]
+fn add_hits<'h, const D: usize>(
+    spans: &[[u32; 3]],
+    hits: impl Fn(usize) -> &'h [super::check::Hit],
+    n: usize,
+    count: usize,
+    robots: std::ops::Range<usize>,
+    corr: &Disjoint<'_, f64>,
+    touched: &Disjoint<'_, bool>,
+    sums: &Disjoint<'_, BlockSums>,
+) {
+    let stride = n * count;
+    let mut pending: Option<(usize, f64)> = None;
+    let flush = |pending: &mut Option<(usize, f64)>| {
+        if let Some((i, sum)) = pending.take() {
+            // SAFETY: robot `i` is the caller's.
+            unsafe { sums.at(i / ROBOT_BLOCK).pair_sq += sum };
+        }
+    };
+    let mut last = (u32::MAX, u32::MAX);
+    for &[part, start, end] in spans {
+        for hit in &hits(part as usize)[start as usize..end as usize] {
+            if (hit.i, hit.j) != last {
+                flush(&mut pending);
+                last = (hit.i, hit.j);
+            }
+            let (i, j, k) = (hit.i as usize, hit.j as usize, hit.k as usize);
+            // SAFETY: only the caller's robots are written.
+            unsafe {
+                if robots.contains(&i) {
+                    *touched.at(i) = true;
+                    let sum = &mut pending.get_or_insert((i, 0.0)).1;
                     for a in 0..D {
-                        corr[a * stride + i * count + k] += c[a];
-                        sum += c[a] * c[a];
+                        *corr.at(a * stride + i * count + k) += hit.c[a];
+                        *sum += hit.c[a] * hit.c[a];
+                    }
+                }
+                if robots.contains(&j) {
+                    *touched.at(j) = true;
+                    for a in 0..D {
+                        *corr.at(a * stride + j * count + k) -= hit.c[a];
                     }
                 }
             }
         }
-        sum
     }
-}
-
-/// Clamps the positions (`[axis][robot][count]`, `axes` axes) into the box
-/// of `limits`: adds the corrections to `corr`, marks the robots moved in
-/// `touched` and returns the corrections' sum of squares.
-pub(super) fn clamp_to_box(
-    pos: &[f64],
-    corr: &mut [f64],
-    touched: &mut [bool],
-    limits: &Limits,
-    axes: usize,
-    count: usize,
-) -> f64 {
-    let robots = touched.len();
-    let mut box_sq = 0.0;
-    for ax in 0..axes {
-        let (lo, hi) = (limits.lo[ax], limits.hi[ax]);
-        for (i, touched) in touched.iter_mut().enumerate() {
-            let range = (ax * robots + i) * count..(ax * robots + i + 1) * count;
-            let mut any = false;
-            for (p, c) in pos[range.clone()].iter().zip(&mut corr[range]) {
-                let d = p.clamp(lo, hi) - p;
-                *c += d;
-                box_sq += d * d;
-                any |= d != 0.0;
-            }
-            *touched |= any;
-        }
-    }
-    box_sq
+    flush(&mut pending);
 }

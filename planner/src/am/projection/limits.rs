@@ -23,9 +23,6 @@ pub struct Limits {
     pub(super) chord: bool,
     /// Find the robot pairs to check by sweep-and-prune (large teams).
     pub(super) broad_phase: bool,
-    /// Check the broad phase's pairs on two threads (teams of
-    /// [`TWO_THREADS_MIN_ROBOTS`] or more).
-    pub(super) two_threads: bool,
 }
 
 impl Limits {
@@ -37,12 +34,6 @@ impl Limits {
     /// Robot-obstacle separations per axis, per obstacle (m).
     pub fn obstacle_separations(&self) -> &[[f64; 3]] {
         &self.obstacle_sep
-    }
-
-    /// Whether the broad phase's pairs of teams of
-    /// [`TWO_THREADS_MIN_ROBOTS`] or more are checked on two threads.
-    pub fn two_threads(&self) -> bool {
-        self.two_threads && self.broad_phase
     }
 
     /// The box positions are clamped into, `(lower, upper)` per axis (m).
@@ -92,15 +83,13 @@ impl Limits {
             until,
             chord: false,
             broad_phase: false,
-            two_threads: false,
         }
     }
 
     /// The same limits checked with `chord` inflation (see [`Projection`])
     /// and, for teams of [`BROAD_PHASE_MIN_ROBOTS`] or more, with the
-    /// `broad_phase`, its pairs on `two_threads` for teams of
-    /// [`TWO_THREADS_MIN_ROBOTS`] or more.
-    pub(crate) fn with_rules(self, chord: bool, broad_phase: bool, two_threads: bool) -> Self {
-        Self { chord, broad_phase, two_threads, ..self }
+    /// `broad_phase`.
+    pub(crate) fn with_rules(self, chord: bool, broad_phase: bool) -> Self {
+        Self { chord, broad_phase, ..self }
     }
 }

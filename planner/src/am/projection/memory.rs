@@ -1,35 +1,46 @@
 //! A projection's working memory: positions and corrections at a grid,
-//! the pair checks' scratch and broad phase, and the pair helper's end.
-
-use std::sync::mpsc::{Receiver, SyncSender};
+//! their coefficients, the pair checks' broad phase, and each crew part's
+//! and each robot block's own.
 
 use super::super::pairs::{BroadPhase, Candidate};
-use super::check::Scratch;
+use super::check::{Hit, Scratch};
 use super::grid::SampleGrid;
 use crate::problem::Dim;
+
+/// Robots per block of the per-robot steps (positions, obstacles, the box,
+/// the products): the blocks, not the crew's size, decide every product's
+/// rows and every sum's order, so plans do not depend on the threads.
+pub(crate) const ROBOT_BLOCK: usize = 16;
 
 /// Positions and corrections at a grid: the projection's working memory.
 #[derive(Debug)]
 pub(crate) struct Projection {
     /// Positions `[axis][robot][count]`.
     pub pos: Vec<f64>,
-    /// Corrections `e - F xi` summed per robot, `[axis][robot][count]`;
-    /// with a helper, only this thread's (see [`Self::coefficients`]).
+    /// Corrections `e - F xi` summed per robot, `[axis][robot][count]`.
     pub corr: Vec<f64>,
-    /// With a helper: all corrections mapped to coefficients, `g = corr P`
-    /// summed over both threads, `[axis][robot][coef]` (empty without).
+    /// The corrections mapped to coefficients, `g = corr P`,
+    /// `[axis][robot][coef]` (after [`Self::run`], not [`Self::clear`]).
     pub(super) mapped: Vec<f64>,
     /// Robots with any non-zero correction.
     pub touched: Vec<bool>,
-    /// One pair's squared targets and moves per instant.
-    pub(super) scratch: Scratch,
+    /// Each crew part's memory (one at least).
+    pub(super) parts: Vec<PartMemory>,
+    /// Each robot block's results.
+    pub(super) blocks: Vec<BlockSums>,
     pub(super) broad: BroadPhase,
+    /// Every pair, in order (teams checked without the broad phase).
+    pub(super) all: Vec<Candidate>,
+    /// On a crew, per chunk of candidates: the part that checked it and
+    /// the range of its hits, `[part, start, end]`.
+    pub(super) spans: Vec<[u32; 3]>,
     /// Each robot's largest scaled move between instants (chord inflation).
     pub(super) steps: Vec<f64>,
     /// Each robot's share of the broad phase's reach, per axis (m).
     pub(super) grow: Vec<[f64; 3]>,
-    /// The thread that checks the second half of the pairs (two threads only).
-    pub(super) helper: Option<PairHelper>,
+    /// Per obstacle, the largest squared target a robot can have against it
+    /// this iteration (with the chord inflation).
+    pub(super) obstacle_bounds: Vec<Option<f64>>,
     /// Stop at the first violation with an infinite sum ([`Self::clear`]).
     pub(super) first: bool,
     /// The pair the last [`Self::clear`] stopped at: checked first by the
@@ -37,56 +48,33 @@ pub(crate) struct Projection {
     pub(super) culprit: Option<(u32, u32)>,
 }
 
-/// The main thread's end of a pair helper ([`Projection::with_helper`]).
-#[derive(Debug)]
-pub(super) struct PairHelper {
-    /// The iterate: the helper evaluates its positions and finds the pairs
-    /// while this thread evaluates its own and clamps them into the box.
-    pub(super) jobs: SyncSender<Job>,
-    /// The first half of the pairs, for this thread.
-    pub(super) firsts: Receiver<Vec<Candidate>>,
-    /// The job back, with the helper's corrections for the second half.
-    pub(super) done: Receiver<Job>,
-    /// The job's buffers between iterations.
-    pub(super) spare: Option<Job>,
-    /// The first half's buffer between iterations.
-    pub(super) spare_pairs: Vec<Candidate>,
-    /// Where the helper is in the current iteration.
-    pub(super) stage: Stage,
-    /// Address of the limits the helper checks against (compared, never read).
-    pub(super) limits: usize,
-}
-
-/// Where a pair helper is in an iteration.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub(super) enum Stage {
-    /// Waiting for an iterate.
-    Idle,
-    /// Evaluating the iterate it was sent and finding its pairs.
-    Evaluating,
-    /// Checking its pairs.
-    Checking,
-}
-
-/// An iteration's iterate for the helper, which evaluates its own positions
-/// from it, finds the pairs, sends the first half back in `pairs` and
-/// checks the second, and its corrections back, mapped to coefficients.
-#[derive(Debug)]
-pub(super) struct Job {
-    pub(super) xi: Vec<f64>,
-    pub(super) pairs: Vec<Candidate>,
-    pub(super) share: Share,
-    /// `share.corr P`, `[axis][robot][coef]`.
-    pub(super) mapped: Vec<f64>,
-    pub(super) sum: f64,
-}
-
-/// One thread's corrections and working memory for its share of the pairs.
+/// One crew part's memory: its pair checks' scratch and what they found.
 #[derive(Debug, Clone)]
-pub(super) struct Share {
-    pub(super) corr: Vec<f64>,
-    pub(super) touched: Vec<bool>,
+pub(super) struct PartMemory {
     pub(super) scratch: Scratch,
+    /// The corrections of the violating pairs of its share, in order.
+    pub(super) hits: Vec<Hit>,
+    /// Stopping at the first violation: the violating pair it found.
+    pub(super) found: Option<Candidate>,
+}
+
+/// One robot block's results of a projection, summed block by block.
+#[derive(Debug, Clone, Copy, Default)]
+pub(super) struct BlockSums {
+    /// The largest move between neighbouring instants of its robots, per axis.
+    pub(super) largest: [f64; 3],
+    /// Sum of the squared pair corrections of the pairs `(i, j)` with `i`
+    /// in the block.
+    pub(super) pair_sq: f64,
+    /// Sum of the squared obstacle corrections.
+    pub(super) obstacle_sq: f64,
+    /// Sum of the squared box corrections.
+    pub(super) box_sq: f64,
+    /// Stopping at the first violation: one of its robots meets an obstacle.
+    pub(super) violated: bool,
+    /// Its robots stay within the broad phase's kept boxes
+    /// ([`BroadPhase::still_covers`]).
+    pub(super) covered: bool,
 }
 
 impl Projection {
@@ -94,18 +82,35 @@ impl Projection {
     pub fn new(dim: Dim, robots: usize, grid: &SampleGrid) -> Self {
         let len = dim.axes() * robots * grid.count();
         let count = grid.count();
+        let n_xi = grid.pt.len() / count.max(1);
         Self {
             pos: vec![0.0; len],
             corr: vec![0.0; len],
-            mapped: Vec::new(),
+            mapped: vec![0.0; dim.axes() * robots * n_xi],
             touched: vec![false; robots],
-            scratch: Scratch { target: vec![1.0; count], step: vec![0.0; count] },
+            parts: vec![PartMemory::new(count)],
+            blocks: vec![BlockSums::default(); robots.div_ceil(ROBOT_BLOCK)],
             broad: BroadPhase::default(),
-            steps: Vec::with_capacity(robots),
-            grow: Vec::with_capacity(robots),
-            helper: None,
+            all: Vec::new(),
+            spans: Vec::new(),
+            steps: vec![0.0; robots],
+            grow: vec![[0.0; 3]; robots],
+            obstacle_bounds: Vec::new(),
             first: false,
             culprit: None,
         }
+    }
+
+    /// Memory for a crew of `parts` parts.
+    pub(super) fn ensure_parts(&mut self, parts: usize, count: usize) {
+        if self.parts.len() < parts {
+            self.parts.resize(parts, PartMemory::new(count));
+        }
+    }
+}
+
+impl PartMemory {
+    fn new(count: usize) -> Self {
+        Self { scratch: Scratch { target: vec![1.0; count], step: vec![0.0; count] }, hits: Vec::new(), found: None }
     }
 }

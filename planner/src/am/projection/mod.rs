@@ -16,24 +16,24 @@
 //! One operation per file: [`grid`] (the instants and the basis there),
 //! [`limits`] (sizes, box and obstacle tracks), [`check`] (the screen and
 //! the push of one pair or obstacle), [`correct`] (every pair, obstacle and
-//! the box), [`helper`] (the second thread of the biggest teams' pairs).
+//! the box, per robot block on a crew), [`memory`] (the working memory).
 
 mod check;
 mod correct;
 mod grid;
-mod helper;
 mod limits;
 mod memory;
 mod run;
 
 pub(crate) use grid::SampleGrid;
-pub use helper::TWO_THREADS_MIN_ROBOTS;
 pub use limits::Limits;
 pub(crate) use memory::Projection;
+pub(crate) use memory::ROBOT_BLOCK;
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::crew::Crew;
     use crate::problem::{Dim, Problem};
     use crate::problem::{Obstacle, Spheroid, StartState, Team};
     use nalgebra::Vector3;
@@ -71,7 +71,7 @@ mod tests {
         let (problem, grid, xi) = setup([0.0, 0.0], [0.1, 0.0], vec![]);
         let limits = Limits::new(&problem, &grid, 1.0, [0.0; 3]);
         let mut p = Projection::new(Dim::Two, 2, &grid);
-        let primal = p.run(Dim::Two, 2, &grid, &limits, &xi);
+        let primal = p.run(&Crew::alone(), Dim::Two, 2, &grid, &limits, &xi);
         // The pair row's target is d / r = (-0.2, 0): the correction is -0.1 on
         // robot 0 and +0.1 on robot 1; the residual is the 0.1 m deficit.
         assert!((corr(&p, 0, 0) + 0.1).abs() < 1e-12 && (corr(&p, 0, 1) - 0.1).abs() < 1e-12);
@@ -85,11 +85,11 @@ mod tests {
         let (problem, grid, xi) = setup([0.0, 0.0], [0.15, 0.15], vec![]);
         let limits = Limits::new(&problem, &grid, 1.0, [0.0; 3]);
         let mut p = Projection::new(Dim::Two, 2, &grid);
-        assert_eq!(p.run(Dim::Two, 2, &grid, &limits, &xi), 0.0);
+        assert_eq!(p.run(&Crew::alone(), Dim::Two, 2, &grid, &limits, &xi), 0.0);
         assert!(p.corr.iter().all(|&c| c == 0.0) && p.touched == vec![false, false]);
         // Inflating by 10% makes the same pair (0.212 m apart) violate.
         let inflated = Limits::new(&problem, &grid, 1.1, [0.0; 3]);
-        assert!(p.run(Dim::Two, 2, &grid, &inflated, &xi) > 0.0);
+        assert!(p.run(&Crew::alone(), Dim::Two, 2, &grid, &inflated, &xi) > 0.0);
     }
 
     #[test]
@@ -97,7 +97,7 @@ mod tests {
         let (problem, grid, xi) = setup([0.3, 0.3], [0.3, 0.3], vec![]);
         let limits = Limits::new(&problem, &grid, 1.0, [0.0; 3]);
         let mut p = Projection::new(Dim::Two, 2, &grid);
-        let primal = p.run(Dim::Two, 2, &grid, &limits, &xi);
+        let primal = p.run(&Crew::alone(), Dim::Two, 2, &grid, &limits, &xi);
         let (cx, cy) = (corr(&p, 0, 0), corr(&p, 1, 0));
         assert!(((cx * cx + cy * cy).sqrt() - 0.2).abs() < 1e-12);
         assert!((primal - 0.2).abs() < 1e-12);
@@ -112,13 +112,13 @@ mod tests {
         let (problem, grid, xi) = setup([0.1, 0.0], [1.05, 0.5], vec![obstacle]);
         let limits = Limits::new(&problem, &grid, 1.0, [0.0; 3]);
         let mut p = Projection::new(Dim::Two, 2, &grid);
-        let primal = p.run(Dim::Two, 2, &grid, &limits, &xi);
+        let primal = p.run(&Crew::alone(), Dim::Two, 2, &grid, &limits, &xi);
         assert!((corr(&p, 0, 0) - 0.1).abs() < 1e-12, "pushed to x = 0.2");
         assert!((corr(&p, 0, 1) + 0.05).abs() < 1e-12, "clamped to x = 1");
         assert!((primal - (0.1 + 0.05)).abs() < 1e-12);
         // A box inset of 0.1 m clamps robot 1 to 0.9 instead.
         let inset = Limits::new(&problem, &grid, 1.0, [0.1; 3]);
-        p.run(Dim::Two, 2, &grid, &inset, &xi);
+        p.run(&Crew::alone(), Dim::Two, 2, &grid, &inset, &xi);
         assert!((corr(&p, 0, 1) + 0.15).abs() < 1e-12);
     }
 
@@ -134,7 +134,7 @@ mod tests {
         let (problem, grid, xi) = setup([0.0, 0.05], [0.8, 0.8], vec![moving]);
         let limits = Limits::new(&problem, &grid, 1.0, [0.0; 3]);
         let mut p = Projection::new(Dim::Two, 2, &grid);
-        let primal = p.run(Dim::Two, 2, &grid, &limits, &xi);
+        let primal = p.run(&Crew::alone(), Dim::Two, 2, &grid, &limits, &xi);
         assert!((corr(&p, 1, 0) - 0.15).abs() < 1e-12, "pushed from y = 0.05 to y = 0.2");
         assert!((primal - 0.15).abs() < 1e-12);
     }
@@ -160,9 +160,9 @@ mod tests {
         }
         let plain = Limits::new(&problem, &grid, 1.0, [0.0; 3]);
         let mut p = Projection::new(Dim::Two, 2, &grid);
-        assert_eq!(p.run(Dim::Two, 2, &grid, &plain, &xi), 0.0, "clear at every instant");
-        let chord = plain.clone().with_rules(true, false, false);
-        let primal = p.run(Dim::Two, 2, &grid, &chord, &xi);
+        assert_eq!(p.run(&Crew::alone(), Dim::Two, 2, &grid, &plain, &xi), 0.0, "clear at every instant");
+        let chord = plain.clone().with_rules(true, false);
+        let primal = p.run(&Crew::alone(), Dim::Two, 2, &grid, &chord, &xi);
         assert!(primal > 0.0, "the chords between the instants dip through the separation");
         // The middle instant is pushed to sqrt(1 + L^2/4) separations, L =
         // 0.25 / 0.2 the scaled move: 0.2 * sqrt(1 + 1.25^2 / 4) = 0.2358 m.
@@ -182,26 +182,53 @@ mod tests {
     }
 
     #[test]
-    fn the_two_thread_iteration_equals_the_one_thread_one_up_to_rounding() {
+    fn every_crew_size_iterates_the_same_numbers() {
         use crate::am::AmSettings;
+        use crate::problem::Obstacle;
         use crate::scenario::RandomScenario;
-        let team = Team {
-            workspace: crate::problem::Workspace::centred(crate::scenes::density_half_width(
-                Dim::Two,
-                TWO_THREADS_MIN_ROBOTS,
-            )),
-            ..Team::default_for(Dim::Two, TWO_THREADS_MIN_ROBOTS)
+        // Kept broad-phase sets from 128 robots, all pairs below 24; one
+        // thread per 32 robots at most.
+        for (dim, robots, obstacles) in [(Dim::Two, 130, 2), (Dim::Two, 70, 3), (Dim::Three, 64, 2), (Dim::Two, 20, 0)]
+        {
+            let team = Team {
+                workspace: crate::problem::Workspace::centred(crate::scenes::density_half_width(dim, robots)),
+                ..Team::default_for(dim, robots)
+            };
+            let mut problem = RandomScenario::new(team.clone()).with_obstacles(obstacles).generate(3).unwrap();
+            if let Some(o) = problem.obstacles.first_mut() {
+                // A moving one too.
+                *o = Obstacle { velocity: nalgebra::Vector3::new(0.2, -0.1, 0.0), ..*o };
+            }
+            let run = |threads| optimise(&problem, AmSettings { threads, ..AmSettings::optimiser() }, 60);
+            let one = run(1);
+            assert!(one.history.iter().any(|r| r.primal > 0.0), "the pairs are exercised");
+            let bits = |h: &[crate::am::Residuals]| -> Vec<(u64, u64)> {
+                h.iter().map(|r| (r.primal.to_bits(), r.fixed_point.to_bits())).collect()
+            };
+            for threads in [2, 3, 5] {
+                let other = run(threads);
+                assert_eq!(other.state, one.state, "{dim:?} {robots} robots, {threads} threads");
+                assert_eq!(bits(&other.history), bits(&one.history), "{dim:?} {robots} robots, {threads} threads");
+            }
+        }
+    }
+
+    #[test]
+    fn a_solve_with_its_verifications_and_restarts_is_the_same_on_every_crew() {
+        use crate::am::{AmSettings, Engine, Objective};
+        use crate::scenes::{Family, Scene};
+        let (problem, _) = Scene { obstacles: 2, ..Scene::new(Family::Crowd, Dim::Two, 130, 5) }.generate().unwrap();
+        let solve = |threads| {
+            let settings = AmSettings { threads, ..AmSettings::optimiser() };
+            let engine = Engine::new(&problem.team, 2, Objective::smoothness(), settings).unwrap();
+            engine.solve(&problem).unwrap()
         };
-        let problem = RandomScenario::new(team.clone()).generate(3).unwrap();
-        let run = |two_threads| optimise(&problem, AmSettings { two_threads, ..AmSettings::optimiser() }, 40);
-        let (two, one) = (run(true), run(false));
-        assert!(one.history.iter().all(|r| r.primal > 0.0), "the pairs are exercised");
-        let close = |a: &[f64], b: &[f64]| a.iter().zip(b).all(|(x, y)| (x - y).abs() <= 1e-9 * (1.0 + y.abs()));
-        assert!(close(&two.state.xi, &one.state.xi) && close(&two.state.lambda, &one.state.lambda));
-        let primal = |h: &[crate::am::Residuals]| h.iter().map(|r| r.primal).collect::<Vec<f64>>();
-        assert!(close(&primal(&two.history), &primal(&one.history)));
-        // The split is fixed, so two threads repeat themselves exactly.
-        assert_eq!(two.state, run(true).state);
+        let one = solve(1);
+        assert_eq!(one.stop, crate::am::Stop::Verified);
+        for threads in [2, 4] {
+            let other = solve(threads);
+            assert_eq!((other.state, other.iterations, other.stop), (one.state.clone(), one.iterations, one.stop));
+        }
     }
 
     #[test]
@@ -225,10 +252,10 @@ mod tests {
             for (g, (grid, limits)) in
                 [(&engine.grid, &prepared.constraint), (&engine.dense, &prepared.verify)].into_iter().enumerate()
             {
-                let clear = Projection::new(Dim::Two, 40, grid).clear(Dim::Two, 40, grid, limits, &xi);
-                let residual = Projection::new(Dim::Two, 40, grid).run(Dim::Two, 40, grid, limits, &xi);
+                let clear = Projection::new(Dim::Two, 40, grid).clear(&Crew::alone(), Dim::Two, 40, grid, limits, &xi);
+                let residual = Projection::new(Dim::Two, 40, grid).run(&Crew::alone(), Dim::Two, 40, grid, limits, &xi);
                 assert_eq!(clear, residual == 0.0, "residual {residual}");
-                assert_eq!(kept[g].clear(Dim::Two, 40, grid, limits, &xi), clear);
+                assert_eq!(kept[g].clear(&Crew::alone(), Dim::Two, 40, grid, limits, &xi), clear);
                 verdicts.push(clear);
             }
         }

@@ -1,0 +1,98 @@
+//! Heap allocations of the optimiser's iterations, counted by this test
+//! binary's global allocator: after a run's first iterations, none per
+//! iteration (alone: none at all; on a crew, a few reallocations of the
+//! parts' hit lists, whichever part grows first), with its dense verifications, for a warm
+//! start (the daemon's replan) as for a cold one. What a run allocates once
+//! (its working memory, the crew's threads) is listed in docs/ENGINE.md.
+//!
+//! One test in this binary, so that nothing else allocates meanwhile.
+
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+use flowopt_planner::am::{AmSettings, Budget, Engine, Objective};
+use flowopt_planner::problem::Dim;
+use flowopt_planner::scenes::{Family, Scene};
+
+/// The system allocator, counting allocations and reallocations.
+struct Counting;
+
+static ALLOCATIONS: AtomicUsize = AtomicUsize::new(0);
+
+// SAFETY: forwards every call to the system allocator unchanged.
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
+        // SAFETY: forwarded.
+        unsafe { System.alloc(layout) }
+    }
+
+    unsafe fn alloc_zeroed(&self, layout: Layout) -> *mut u8 {
+        ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
+        // SAFETY: forwarded.
+        unsafe { System.alloc_zeroed(layout) }
+    }
+
+    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+        ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
+        // SAFETY: forwarded.
+        unsafe { System.realloc(ptr, layout, new_size) }
+    }
+
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        // SAFETY: forwarded.
+        unsafe { System.dealloc(ptr, layout) }
+    }
+}
+
+#[global_allocator]
+static GLOBAL: Counting = Counting;
+
+#[test]
+fn iterations_allocate_nothing_after_a_runs_start() {
+    // 64 robots (a crew of two), two obstacles, one of them moving.
+    let scene = Scene { obstacles: 2, obstacle_speed: 0.3, ..Scene::new(Family::Crowd, Dim::Two, 64, 7) };
+    let (problem, _) = scene.generate().expect("the scene generates");
+    for threads in [1, 2] {
+        // Verifications every 10 iterations from the start, at twice the
+        // separations (they fail: the run goes on to its cap).
+        let settings = AmSettings {
+            threads,
+            verify_below: f64::INFINITY,
+            verify_margin: 1.0,
+            tolerance: -1.0,
+            ..AmSettings::optimiser()
+        };
+        let engine = Engine::new(&problem.team, 2, Objective::smoothness(), settings).expect("the engine builds");
+        let prepared = engine.prepare(&problem, None).expect("the problem is valid");
+        // A warm start: the solved plan, as the daemon's replan starts from
+        // the held one; and the cold start.
+        let solver = Engine::new(&problem.team, 2, Objective::smoothness(), AmSettings::optimiser()).expect("builds");
+        let warm = solver.solve(&problem).expect("the problem solves").state;
+        for (start, name) in [(warm, "warm"), (engine.cold_start(&prepared), "cold")] {
+            let count = |iterations: usize| {
+                let mut settings = settings;
+                settings.max_iterations = iterations;
+                let capped = Engine::new(&problem.team, 2, Objective::smoothness(), settings).expect("builds");
+                let before = ALLOCATIONS.load(Ordering::Relaxed);
+                let outcome = capped.run_within(&prepared, start.clone(), &Budget::unlimited());
+                let after = ALLOCATIONS.load(Ordering::Relaxed);
+                (after - before, outcome)
+            };
+            let (short, short_run) = count(100);
+            let (long, long_run) = count(400);
+            assert!(long_run.iterations > short_run.iterations, "{name}: the longer run iterates more");
+            // Alone, exactly as many; on a crew the parts' hit lists grow
+            // while the run's first iterations find more violations, by
+            // whichever part took them: a few reallocations either way, not
+            // one per iteration.
+            let spare = if threads == 1 { 0 } else { 3 };
+            assert!(
+                long.abs_diff(short) <= spare,
+                "{name} start, {threads} thread(s): {} iterations allocated {long} times, {} iterations {short}",
+                long_run.iterations,
+                short_run.iterations
+            );
+        }
+    }
+}
