@@ -100,25 +100,19 @@ impl Projection {
     /// The pairs to check: the broad phase's candidates (teams of
     /// [`BROAD_PHASE_MIN_ROBOTS`] or more where `limits` ask for it), else
     /// every pair.
-    pub(super) fn candidates<const D: usize>(
-        &mut self,
-        crew: &Crew<'_>,
-        n: usize,
-        count: usize,
-        limits: &Limits,
-    ) -> usize {
+    pub(super) fn candidates<const D: usize>(&mut self, crew: &Crew<'_>, n: usize, count: usize, limits: &Limits) {
         if limits.broad_phase && n >= BROAD_PHASE_MIN_ROBOTS {
             // Whether every robot stays within the kept boxes was found per
             // block with the positions.
             let covered = self.blocks[..n.div_ceil(ROBOT_BLOCK)].iter().all(|b| b.covered);
-            return self.broad.candidates_covered(crew, covered, &self.pos, D, n, count, &self.grow).len();
+            self.broad.candidates_covered(crew, covered, &self.pos, D, n, count, &self.grow);
+            return;
         }
         let pairs = n * n.saturating_sub(1) / 2;
         if self.all.len() != pairs || self.all.first().is_some_and(|c| c.to as usize != count) {
             self.all.clear();
             self.all.extend(all_pairs(n, count));
         }
-        pairs
     }
 
     /// Checks the candidates, [`PAIR_CHUNK`] at a time, each part taking
@@ -136,7 +130,7 @@ impl Projection {
         broad: bool,
     ) {
         let inv = limits.robot_sep.map(|s| 1.0 / (s * s));
-        let Projection { pos, corr, touched, steps, parts, broad: phase, all, first, spans, blocks, .. } = self;
+        let Projection { pos, corr, touched, steps, parts, hits, broad: phase, all, first, spans, blocks, .. } = self;
         let candidates: &[Candidate] = if broad { phase.current() } else { all };
         let check = Check { pos, steps, n, count, limits, inv };
         let first = *first;
@@ -154,10 +148,10 @@ impl Projection {
         spans.resize(chunks, [0; 3]);
         let next = AtomicUsize::new(0);
         let found = AtomicBool::new(false);
-        let (parts, spans) = (Disjoint::new(parts), Disjoint::new(spans));
+        let (parts, all_hits, spans) = (Disjoint::new(parts), Disjoint::new(hits), Disjoint::new(spans));
         crew.run(&|part| {
             // SAFETY: each part takes its own memory, each chunk one part.
-            let PartMemory { scratch, hits, found: mine } = unsafe { parts.at(part) };
+            let (PartMemory { scratch, found: mine }, hits) = unsafe { (parts.at(part), all_hits.at(part)) };
             hits.clear();
             *mine = None;
             loop {
@@ -183,10 +177,10 @@ impl Projection {
         // Any part may take every hit next time: room for all of them in
         // each, so that warm iterations do not allocate whichever part is
         // faster.
-        let parts = &mut self.parts[..crew.size()];
-        let total: usize = parts.iter().map(|p| p.hits.len()).sum();
-        for part in parts {
-            part.hits.reserve(total.saturating_sub(part.hits.len()));
+        let hits = &mut self.hits[..crew.size()];
+        let total: usize = hits.iter().map(Vec::len).sum();
+        for mine in hits {
+            mine.reserve(total.saturating_sub(mine.len()));
         }
     }
 
@@ -206,8 +200,9 @@ impl Projection {
             let track = &limits.tracks[m * D * count..(m + 1) * D * count];
             limits.chord.then(|| largest_target(&largest, &largest_steps(track, D, 1, count), &inv))
         }));
-        let Projection { pos, corr, mapped, touched, parts, blocks: sums, obstacle_bounds, first, spans, .. } = self;
-        let (first, pos, bounds, spans) = (*first, &*pos, &*obstacle_bounds, &*spans);
+        let Projection { pos, corr, mapped, touched, parts, hits, blocks: sums, obstacle_bounds, first, spans, .. } =
+            self;
+        let (first, pos, bounds, spans, hits) = (*first, &*pos, &*obstacle_bounds, &*spans, &*hits);
         let (corr, mapped, touched) = (Disjoint::new(corr), Disjoint::new(mapped), Disjoint::new(touched));
         let (parts, sums) = (Disjoint::new(parts), Disjoint::new(sums));
         crew.run(&|part| {
@@ -215,8 +210,6 @@ impl Projection {
             // robots belong to one part.
             let mine = share(part, crew.size(), blocks);
             if crew.size() > 1 && !first {
-                // SAFETY: as above; the hits are read only.
-                let hits = |p: usize| unsafe { &*parts.at(p).hits };
                 add_hits::<D>(
                     spans,
                     hits,
@@ -296,9 +289,9 @@ impl Projection {
 /// [`super::check::Check::push`] adds them). The caller owns those robots'
 /// rows, marks and blocks.
 #[allow(clippy::too_many_arguments, reason = "the step's shared buffers")]
-fn add_hits<'h, const D: usize>(
+fn add_hits<const D: usize>(
     spans: &[[u32; 3]],
-    hits: impl Fn(usize) -> &'h [super::check::Hit],
+    hits: &[Vec<super::check::Hit>],
     n: usize,
     count: usize,
     robots: std::ops::Range<usize>,
@@ -316,7 +309,7 @@ fn add_hits<'h, const D: usize>(
     };
     let mut last = (u32::MAX, u32::MAX);
     for &[part, start, end] in spans {
-        for hit in &hits(part as usize)[start as usize..end as usize] {
+        for hit in &hits[part as usize][start as usize..end as usize] {
             if (hit.i, hit.j) != last {
                 flush(&mut pending);
                 last = (hit.i, hit.j);

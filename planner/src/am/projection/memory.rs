@@ -26,6 +26,10 @@ pub(crate) struct Projection {
     pub touched: Vec<bool>,
     /// Each crew part's memory (one at least).
     pub(super) parts: Vec<PartMemory>,
+    /// Each crew part's hits: the corrections of the violating pairs of
+    /// the chunks it checked, in order (apart from [`PartMemory`], since
+    /// every part reads them all while it writes its own scratch).
+    pub(super) hits: Vec<Vec<Hit>>,
     /// Each robot block's results.
     pub(super) blocks: Vec<BlockSums>,
     pub(super) broad: BroadPhase,
@@ -52,8 +56,6 @@ pub(crate) struct Projection {
 #[derive(Debug, Clone)]
 pub(super) struct PartMemory {
     pub(super) scratch: Scratch,
-    /// The corrections of the violating pairs of its share, in order.
-    pub(super) hits: Vec<Hit>,
     /// Stopping at the first violation: the violating pair it found.
     pub(super) found: Option<Candidate>,
 }
@@ -89,6 +91,7 @@ impl Projection {
             mapped: vec![0.0; dim.axes() * robots * n_xi],
             touched: vec![false; robots],
             parts: vec![PartMemory::new(count)],
+            hits: vec![Vec::new()],
             blocks: vec![BlockSums::default(); robots.div_ceil(ROBOT_BLOCK)],
             broad: BroadPhase::default(),
             all: Vec::new(),
@@ -105,12 +108,13 @@ impl Projection {
     pub(super) fn ensure_parts(&mut self, parts: usize, count: usize) {
         if self.parts.len() < parts {
             self.parts.resize(parts, PartMemory::new(count));
+            self.hits.resize_with(parts, Vec::new);
         }
     }
 }
 
 impl PartMemory {
     fn new(count: usize) -> Self {
-        Self { scratch: Scratch { target: vec![1.0; count], step: vec![0.0; count] }, hits: Vec::new(), found: None }
+        Self { scratch: Scratch { target: vec![1.0; count], step: vec![0.0; count] }, found: None }
     }
 }
