@@ -169,7 +169,7 @@ impl Engine {
         Crew::with(threads, |crew| self.iterate(prepared, state, cap, budget, crew))
     }
 
-    /// The iterations of [`Self::run_capped`] with `projection`.
+    /// The iterations of [`Self::run_capped`] on `crew`.
     fn iterate(
         &self,
         prepared: &Prepared,

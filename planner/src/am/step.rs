@@ -5,7 +5,7 @@
 
 use super::engine::{AmState, Engine, Residuals};
 use super::prepare::Prepared;
-use super::projection::{Projection, ROBOT_BLOCK};
+use super::projection::{Projection, ROBOT_BLOCK, block_robots};
 use crate::crew::{Crew, Disjoint};
 use crate::kkt::WORKSPACE_WEIGHT;
 use crate::linalg::{Accum, dot, gemm};
@@ -158,7 +158,7 @@ impl Engine {
             let (lambda, u, rhs, block_sq) =
                 (Disjoint::new(&mut state.lambda), Disjoint::new(u), Disjoint::new(rhs), Disjoint::new(block_sq));
             crew.each(nb, &|_, b| {
-                let robots = b * ROBOT_BLOCK..((b + 1) * ROBOT_BLOCK).min(n);
+                let robots = block_robots(b, n);
                 let mut lambda_sq = 0.0;
                 for ax in 0..dim {
                     let rows = (ax * n + robots.start) * nx..(ax * n + robots.end) * nx;
@@ -211,7 +211,7 @@ impl Engine {
             let (rhs, shift, beta) = (&*rhs, &*shift, &prepared.beta[level]);
             let (next, block_sq) = (Disjoint::new(next), Disjoint::new(block_sq));
             crew.each(nb, &|_, b| {
-                let robots = b * ROBOT_BLOCK..((b + 1) * ROBOT_BLOCK).min(n);
+                let robots = block_robots(b, n);
                 let mut xi_sq = 0.0;
                 for ax in 0..dim {
                     let rows = (ax * n + robots.start) * nx..(ax * n + robots.end) * nx;

@@ -14,7 +14,7 @@ use super::super::pairs::{BROAD_PHASE_MIN_ROBOTS, Candidate, KEEP_MIN_ROBOTS};
 use super::check::{Check, all_pairs, largest_steps, largest_target, push, reach_share, robot_rows, robot_step};
 use super::grid::SampleGrid;
 use super::limits::Limits;
-use super::memory::{BlockSums, PartMemory, Projection, ROBOT_BLOCK};
+use super::memory::{BlockSums, PartMemory, Projection, ROBOT_BLOCK, block_robots};
 use crate::crew::{Crew, Disjoint, share};
 use crate::linalg::{Accum, gemm};
 
@@ -22,11 +22,6 @@ use crate::linalg::{Accum, gemm};
 /// `width` long: the range of the flat buffer.
 fn block_rows(a: usize, n: usize, robots: &std::ops::Range<usize>, width: usize) -> std::ops::Range<usize> {
     (a * n + robots.start) * width..(a * n + robots.end) * width
-}
-
-/// The robots of block `b` of `n`.
-fn block_robots(b: usize, n: usize) -> std::ops::Range<usize> {
-    b * ROBOT_BLOCK..((b + 1) * ROBOT_BLOCK).min(n)
 }
 
 /// Candidates a crew part checks at a time (it takes the next chunk left,

@@ -12,6 +12,11 @@ use crate::problem::Dim;
 /// rows and every sum's order, so plans do not depend on the threads.
 pub(crate) const ROBOT_BLOCK: usize = 16;
 
+/// The robots of block `b` of a team of `n`.
+pub(crate) fn block_robots(b: usize, n: usize) -> std::ops::Range<usize> {
+    b * ROBOT_BLOCK..((b + 1) * ROBOT_BLOCK).min(n)
+}
+
 /// Positions and corrections at a grid: the projection's working memory.
 #[derive(Debug)]
 pub(crate) struct Projection {

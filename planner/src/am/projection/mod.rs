@@ -28,7 +28,7 @@ mod run;
 pub(crate) use grid::SampleGrid;
 pub use limits::Limits;
 pub(crate) use memory::Projection;
-pub(crate) use memory::ROBOT_BLOCK;
+pub(crate) use memory::{ROBOT_BLOCK, block_robots};
 
 #[cfg(test)]
 mod tests {
