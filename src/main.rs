@@ -12,7 +12,7 @@ use std::process::ExitCode;
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
 use learn::{datagen, train};
-use live::{bench_ipc, demo, serve, sim};
+use live::{bench_ipc, demo, ros2, serve, sim};
 use offline::{bench, eval, solve};
 use tracing_subscriber::filter::{EnvFilter, LevelFilter};
 use tracing_subscriber::prelude::*;
@@ -36,6 +36,9 @@ enum Command {
     Sim(sim::SimArgs),
     /// Start the daemon and the simulator as two processes and report.
     Demo(demo::DemoArgs),
+    /// Bridge a team between ROS 2 (mocap poses, goals, obstacles) and the
+    /// daemon (paths, trajectories, statuses), without a ROS install.
+    Ros2(ros2::Ros2Args),
     /// Plan one instance and report success, time and quality.
     Solve(solve::SolveArgs),
     /// Run a method over seeded instances and summarise (median, p95, ...).
@@ -73,7 +76,7 @@ fn run(cli: Cli) -> Result<()> {
     // Logs: RUST_LOG, or warnings plus the daemon's and simulator's
     // progress. The trace, if asked for, records every span at INFO.
     let filter = EnvFilter::try_from_default_env()
-        .unwrap_or_else(|_| EnvFilter::new("warn,flowopt_daemon=info,iceoryx2_bb_loggers=error"));
+        .unwrap_or_else(|_| EnvFilter::new("warn,flowopt_daemon=info,flowopt::live::observe=info,iceoryx2_bb_loggers=error,ros2_client::distributions=error"));
     let fmt = tracing_subscriber::fmt::layer().with_writer(std::io::stderr).with_filter(filter);
     let mut _flush = None;
     // `demo` hands the trace file to its daemon process instead.
@@ -88,6 +91,7 @@ fn run(cli: Cli) -> Result<()> {
         Command::Serve(args) => serve::run(args),
         Command::Sim(args) => sim::run(args),
         Command::Demo(args) => demo::run(args, cli.trace_out),
+        Command::Ros2(args) => ros2::run(args),
         Command::Solve(args) => solve::run(args),
         Command::Bench(args) => bench::run(args),
         Command::BenchIpc(args) => bench_ipc::run(args),

@@ -10,7 +10,9 @@
 //!   [`StateSubscriber`] and [`PlanPublisher`] for the daemon;
 //! - [`follow`]: the followability contract on the controller's side:
 //!   which verified trajectory to follow now ([`Follower`]);
-//! - [`clock`]: the monotonic clock every timestamp is read from.
+//! - [`clock`]: the monotonic clock every timestamp is read from;
+//! - [`records`]: the messages as plain serde records (recordings, the
+//!   live view, the ROS 2 bridge's status).
 //!
 //! A controller publishes its measured state, takes the newest plan message
 //! and follows what the contract says (a verified trajectory, or none:
@@ -50,6 +52,7 @@ pub mod follow;
 pub mod messages;
 pub mod pieces;
 pub mod ports;
+pub mod records;
 
 use thiserror::Error;
 

@@ -12,6 +12,8 @@
 //!   `flowopt_methods`), stopping plans; [`answer`] and [`held`]: what it
 //!   answers and holds; `preload`: building it; `repair`: the safety
 //!   filter's repairs and the limits it keeps;
+//! - [`http`]: the small HTTP server of the metrics and the live view's
+//!   page;
 //! - [`realtime`]: worker priority, memory locking and CPU pinning, each
 //!   reported when refused;
 //! - [`serve()`]: the service: preloading, a WaitSet on every team's
@@ -23,6 +25,7 @@ pub mod answer;
 pub mod config;
 pub mod convert;
 pub mod held;
+pub mod http;
 pub mod lock;
 pub mod metrics;
 pub mod planning;

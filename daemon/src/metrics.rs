@@ -7,8 +7,7 @@
 //! Recording is an atomic add: a counter is created (allocating its
 //! labels) the first time its status and reason occur, and kept.
 
-use std::io::{Read, Write};
-use std::net::{SocketAddr, TcpListener, TcpStream};
+use std::net::SocketAddr;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
@@ -20,7 +19,9 @@ use prometheus_client::metrics::family::Family;
 use prometheus_client::metrics::histogram::{Histogram, exponential_buckets};
 use prometheus_client::registry::Registry;
 use thiserror::Error;
-use tracing::{info, warn};
+use tracing::info;
+
+use crate::http;
 
 /// Labels of an answer counter.
 #[derive(Debug, Clone, Hash, PartialEq, Eq, EncodeLabelSet)]
@@ -166,49 +167,15 @@ pub enum MetricsError {
 /// a thread of its own, for as long as the process lives. Returns the
 /// address bound (`addr` with port 0 gets one from the system).
 pub fn serve_metrics(addr: SocketAddr, metrics: Arc<Mutex<Metrics>>) -> Result<SocketAddr, MetricsError> {
-    let listener = TcpListener::bind(addr).map_err(|source| MetricsError::Bind { addr, source })?;
-    let bound = listener.local_addr().map_err(|source| MetricsError::Bind { addr, source })?;
-    let spawned = std::thread::Builder::new().name("metrics".into()).spawn(move || {
-        for stream in listener.incoming().flatten() {
-            if let Err(e) = respond(stream, &metrics) {
-                warn!("metrics request failed: {e}");
-            }
-        }
-    });
-    if let Err(source) = spawned {
-        return Err(MetricsError::Bind { addr, source });
-    }
+    let bound = http::serve(addr, "metrics", "not found: the metrics are at /metrics\n", move |path| {
+        (path == "/metrics").then(|| {
+            let text = metrics.lock().map(|m| m.encode()).unwrap_or_default();
+            ("application/openmetrics-text; version=1.0.0; charset=utf-8", text)
+        })
+    })
+    .map_err(|source| MetricsError::Bind { addr, source })?;
     info!("metrics on http://{bound}/metrics");
     Ok(bound)
-}
-
-/// Answers one HTTP request.
-fn respond(mut stream: TcpStream, metrics: &Mutex<Metrics>) -> std::io::Result<()> {
-    stream.set_read_timeout(Some(Duration::from_secs(2)))?;
-    // The request head, up to its blank line (closing with unread bytes
-    // would reset the connection before the client reads the answer).
-    let mut request = Vec::with_capacity(1024);
-    let mut chunk = [0u8; 1024];
-    while !request.windows(4).any(|w| w == b"\r\n\r\n") && request.len() < 16 * 1024 {
-        let n = stream.read(&mut chunk)?;
-        if n == 0 {
-            break;
-        }
-        request.extend_from_slice(&chunk[..n]);
-    }
-    let line = String::from_utf8_lossy(&request);
-    let path = line.split_whitespace().nth(1).unwrap_or("");
-    let (status, kind, body) = if line.starts_with("GET ") && (path == "/metrics" || path.starts_with("/metrics?")) {
-        let text = metrics.lock().map(|m| m.encode()).unwrap_or_default();
-        ("200 OK", "application/openmetrics-text; version=1.0.0; charset=utf-8", text)
-    } else {
-        ("404 Not Found", "text/plain; charset=utf-8", "not found: the metrics are at /metrics\n".to_string())
-    };
-    let response = format!(
-        "HTTP/1.1 {status}\r\nContent-Type: {kind}\r\nContent-Length: {}\r\nConnection: close\r\n\r\n{body}",
-        body.len()
-    );
-    stream.write_all(response.as_bytes())
 }
 
 #[cfg(test)]
@@ -216,11 +183,7 @@ mod tests {
     use super::*;
 
     fn get(addr: SocketAddr, path: &str) -> String {
-        let mut stream = TcpStream::connect(addr).unwrap();
-        stream.write_all(format!("GET {path} HTTP/1.1\r\nHost: x\r\n\r\n").as_bytes()).unwrap();
-        let mut text = String::new();
-        stream.read_to_string(&mut text).unwrap();
-        text
+        http::get(addr, path).unwrap()
     }
 
     #[test]

@@ -18,6 +18,7 @@ use serde::Serialize;
 
 use crate::live::daemon_args::DaemonArgs;
 use crate::live::faults::{Fault, SCHEDULE};
+use crate::live::observe::ObserveArgs;
 use crate::live::sim::{SimReport, print_report};
 
 /// How long the daemon may take to exit after SIGTERM.
@@ -33,6 +34,10 @@ const RSS_SETTLED_S: f64 = 10.0;
 pub struct DemoArgs {
     #[command(flatten)]
     daemon: DaemonArgs,
+    /// Recording and live view, of the simulated team's traffic (done by
+    /// the simulator, which lives through the daemon's restarts).
+    #[command(flatten)]
+    observe: ObserveArgs,
     /// Seconds of simulation.
     #[arg(long, default_value_t = 30.0)]
     seconds: f64,
@@ -128,6 +133,7 @@ pub fn run(args: DemoArgs, trace_out: Option<PathBuf>) -> Result<()> {
         .arg("--json")
         .args(["--seconds", &args.seconds.to_string(), "--rate-hz", &args.rate_hz.to_string()])
         .args(["--seed", &args.seed.to_string()])
+        .args(args.observe.child_args())
         .stdin(Stdio::null())
         .stdout(Stdio::piped())
         .stderr(Stdio::inherit());
@@ -194,7 +200,7 @@ pub fn run(args: DemoArgs, trace_out: Option<PathBuf>) -> Result<()> {
         }
     }
     let status = sim.wait().context("cannot run the simulator")?;
-    let daemon_clean_exit = stop(&mut daemon)?;
+    let daemon_clean_exit = stop_child(&mut daemon)?;
     if !status.success() {
         bail!("the simulator failed ({status})");
     }
@@ -243,7 +249,7 @@ fn second(exe: &PathBuf, shared: &[String], prefix: &str) -> Result<SecondDaemon
         std::thread::sleep(Duration::from_millis(20));
     }
     // Still running: it did not refuse. Stop it.
-    stop(&mut child)?;
+    stop_child(&mut child)?;
     Ok(SecondDaemon { refused: false, named_the_service: false })
 }
 
@@ -268,7 +274,7 @@ fn other_controller(exe: &PathBuf, shared: &[String]) -> Result<SecondController
         }
         std::thread::sleep(Duration::from_millis(20));
     }
-    stop(&mut child)?;
+    stop_child(&mut child)?;
     Ok(SecondController { refused: false, named_the_team: false })
 }
 
@@ -281,7 +287,7 @@ fn rss_kib(pid: u32) -> Option<u64> {
 
 /// Sends SIGTERM and waits; kills after the grace period. Returns whether
 /// the process exited by itself with status 0.
-fn stop(child: &mut Child) -> Result<bool> {
+pub(crate) fn stop_child(child: &mut Child) -> Result<bool> {
     if let Some(status) = child.try_wait()? {
         return Ok(status.success());
     }

@@ -38,6 +38,7 @@ use tracing::warn;
 
 use crate::live::daemon_args::DaemonArgs;
 use crate::live::faults::{Fault, SCHEDULE, Scheduled};
+use crate::live::observe::{ObserveArgs, Observer, Watched};
 use check::{Failure, check};
 use robots::Robots;
 pub use tally::Tally;
@@ -52,6 +53,8 @@ const REMEMBERED: usize = 256;
 pub struct SimArgs {
     #[command(flatten)]
     pub daemon: DaemonArgs,
+    #[command(flatten)]
+    pub observe: ObserveArgs,
     /// Team to simulate (default: the configuration's first).
     #[arg(long)]
     pub team: Option<String>,
@@ -129,7 +132,14 @@ pub struct SimReport {
 
 /// Runs `flowopt sim`.
 pub fn run(args: SimArgs) -> Result<()> {
-    let report = simulate(&args)?;
+    let (config, team_config) = args.daemon.team(args.team.as_deref())?;
+    let watched = [Watched::new(&team_config.name, &team_config.team()?)];
+    let observer = Observer::start(&args.observe, &config.ipc.prefix, &watched)?;
+    let report = simulate(&args);
+    if let Some(observer) = observer {
+        observer.finish()?;
+    }
+    let report = report?;
     if args.json {
         println!("{}", serde_json::to_string(&report)?);
     } else {
