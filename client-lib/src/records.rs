@@ -161,14 +161,23 @@ impl PlanRecord {
             coefficients,
         })
     }
+}
 
-    /// Robot `robot`'s position `t` s after the origin (clamped to
-    /// `[0, T]`), by de Casteljau's algorithm: what a reader without this
-    /// project's code computes.
-    pub fn position(&self, robot: usize, t: f64) -> [f64; 3] {
-        let s = (t / self.horizon).clamp(0.0, 1.0);
+#[cfg(test)]
+mod tests {
+    use flowopt_planner::plan::JointPlan;
+    use flowopt_planner::problem::Dim;
+
+    use super::*;
+    use crate::PlanStatus;
+
+    /// Robot `robot`'s position `t` s after the origin of `plan` (clamped
+    /// to `[0, T]`), by de Casteljau's algorithm on the record alone: what
+    /// a reader without this project's code computes.
+    fn position(plan: &PlanRecord, robot: usize, t: f64) -> [f64; 3] {
+        let s = (t / plan.horizon).clamp(0.0, 1.0);
         let mut out = [0.0; 3];
-        for (a, c) in self.coefficients[robot].iter().enumerate() {
+        for (a, c) in plan.coefficients[robot].iter().enumerate() {
             let mut points = c.clone();
             for level in (1..points.len()).rev() {
                 for k in 0..level {
@@ -179,15 +188,6 @@ impl PlanRecord {
         }
         out
     }
-}
-
-#[cfg(test)]
-mod tests {
-    use flowopt_planner::plan::JointPlan;
-    use flowopt_planner::problem::Dim;
-
-    use super::*;
-    use crate::PlanStatus;
 
     #[test]
     fn a_plan_record_rebuilds_the_plan_it_was_made_from() {
@@ -208,7 +208,7 @@ mod tests {
         for t in [0.0, 0.3, 1.7, 4.0, 9.0] {
             let at = plan.at(t);
             for i in 0..robots {
-                let p = rebuilt.position(i, t);
+                let p = position(&rebuilt, i, t);
                 assert!((p[0] - at[i].position.x).abs() < 1e-12 && (p[1] - at[i].position.y).abs() < 1e-12);
             }
         }

@@ -267,10 +267,11 @@ fn publish_plan(
     let clocks = Clocks::now();
     report.plans_published += 1;
     report.brakes_published += u64::from(followed.is_none());
+    let sampled = followed.map(|f| convert::Sampled::of(f, s.path_points));
     for (i, publisher) in ros.paths.iter().enumerate() {
-        publish(publisher, convert::path(followed, i, s.path_points, &s.frame_id, &clocks), report);
+        publish(publisher, convert::path(sampled.as_ref(), i, &s.frame_id, &clocks), report);
     }
-    publish(&ros.trajectory, convert::trajectory(followed, names, s.path_points, &s.frame_id, &clocks), report);
+    publish(&ros.trajectory, convert::trajectory(sampled.as_ref(), names, &s.frame_id, &clocks), report);
     for (i, publisher) in ros.pieces.iter().enumerate() {
         publish(publisher, convert::pieces(followed, i), report);
     }

@@ -6,6 +6,7 @@
 use flowopt_client::Followed;
 use flowopt_client::clock::monotonic_ns;
 use flowopt_client::pieces::{COEFFICIENTS, DEFAULT_PIECE_S, Pieces};
+use flowopt_planner::plan::Kinematics;
 
 use crate::msgs::{
     Float64MultiArray, Header, MultiArrayDimension, MultiArrayLayout, MultiDofJointTrajectory,
@@ -58,26 +59,47 @@ impl Clocks {
     }
 }
 
-/// The instants `k T / (points - 1)` after a plan's origin, in seconds.
-fn instants(horizon: f64, points: usize) -> impl Iterator<Item = f64> {
-    let last = (points.max(2) - 1) as f64;
-    (0..points.max(2)).map(move |k| horizon * k as f64 / last)
+/// The plan to follow at `points` instants `k T / (points - 1)` after its
+/// origin: every robot at each instant, evaluated once for all the paths
+/// and the trajectory published from it.
+#[derive(Debug, Clone)]
+pub struct Sampled {
+    /// The plan's origin (monotonic ns).
+    origin_ns: u64,
+    /// `(seconds after the origin, every robot there)`.
+    instants: Vec<(f64, Vec<Kinematics>)>,
+}
+
+impl Sampled {
+    /// `followed` at `points` instants (at least 2) over its horizon.
+    pub fn of(followed: &Followed, points: usize) -> Self {
+        let last = (points.max(2) - 1) as f64;
+        let instants = (0..points.max(2))
+            .map(|k| {
+                let t = followed.plan.horizon * k as f64 / last;
+                (t, followed.plan.at(t))
+            })
+            .collect();
+        Self { origin_ns: followed.origin_ns, instants }
+    }
 }
 
 fn header(stamp: Time, frame: &str) -> Header {
     Header { stamp, frame_id: frame.to_string() }
 }
 
-/// Robot `robot`'s path on `followed` (`points` poses over the horizon,
-/// each stamped with the ROS time to be there); `None`: an empty path,
-/// which tells the robot to brake.
-pub fn path(followed: Option<&Followed>, robot: usize, points: usize, frame: &str, clocks: &Clocks) -> Path {
-    let Some(f) = followed else {
+/// Robot `robot`'s path on the sampled plan (a pose per instant, each
+/// stamped with the ROS time to be there); `None`: an empty path, which
+/// tells the robot to brake.
+pub fn path(sampled: Option<&Sampled>, robot: usize, frame: &str, clocks: &Clocks) -> Path {
+    let Some(f) = sampled else {
         return Path { header: header(clocks.ros(clocks.monotonic_ns), frame), poses: Vec::new() };
     };
-    let poses = instants(f.plan.horizon, points)
-        .map(|t| {
-            let k = &f.plan.at(t)[robot];
+    let poses = f
+        .instants
+        .iter()
+        .map(|(t, at)| {
+            let k = &at[robot];
             let stamp = clocks.ros(f.origin_ns + (t * 1e9) as u64);
             PoseStamped {
                 header: header(stamp, frame),
@@ -91,25 +113,26 @@ pub fn path(followed: Option<&Followed>, robot: usize, points: usize, frame: &st
     Path { header: header(clocks.ros(f.origin_ns), frame), poses }
 }
 
-/// The team's plan as one trajectory: a point per instant with every
-/// robot's position, velocity and acceleration; `names` names the robots.
+/// The team's sampled plan as one trajectory: a point per instant with
+/// every robot's position, velocity and acceleration; `names` names the
+/// robots.
 pub fn trajectory(
-    followed: Option<&Followed>,
+    sampled: Option<&Sampled>,
     names: &[String],
-    points: usize,
     frame: &str,
     clocks: &Clocks,
 ) -> MultiDofJointTrajectory {
-    let Some(f) = followed else {
+    let Some(f) = sampled else {
         return MultiDofJointTrajectory {
             header: header(clocks.ros(clocks.monotonic_ns), frame),
             joint_names: names.to_vec(),
             points: Vec::new(),
         };
     };
-    let points = instants(f.plan.horizon, points)
-        .map(|t| {
-            let at = f.plan.at(t);
+    let points = f
+        .instants
+        .iter()
+        .map(|(t, at)| {
             let vector = |v: &nalgebra::Vector3<f64>| Vector3 { x: v.x, y: v.y, z: v.z };
             MultiDofJointTrajectoryPoint {
                 transforms: at
@@ -258,7 +281,8 @@ mod tests {
     fn paths_and_trajectories_follow_the_plan_on_the_ros_clock() {
         let clocks = Clocks { monotonic_ns: 6_000_000_000, unix_ns: 1_700_000_000_000_000_000 };
         let f = followed();
-        let p = path(Some(&f), 1, 4, "world", &clocks);
+        let sampled = Sampled::of(&f, 4);
+        let p = path(Some(&sampled), 1, "world", &clocks);
         assert_eq!(p.poses.len(), 4);
         // Robot 1 goes from x = 1 to 4 in 3 s at 1 m/s; the origin is 1 s
         // before the clocks were read.
@@ -267,15 +291,15 @@ mod tests {
             assert_eq!(pose.header.stamp.ns(), 1_700_000_000_000_000_000 - 1_000_000_000 + k as i64 * 1_000_000_000);
         }
         assert_eq!(p.header.frame_id, "world");
-        assert!(path(None, 0, 4, "world", &clocks).poses.is_empty());
+        assert!(path(None, 0, "world", &clocks).poses.is_empty());
         let names = vec!["robot0".to_string(), "robot1".to_string()];
-        let t = trajectory(Some(&f), &names, 4, "world", &clocks);
+        let t = trajectory(Some(&sampled), &names, "world", &clocks);
         assert_eq!(t.points.len(), 4);
         assert_eq!(t.points[2].transforms.len(), 2);
         assert!((t.points[2].transforms[0].translation.x - 2.0).abs() < 1e-12);
         assert!((t.points[2].velocities[1].linear.x - 1.0).abs() < 1e-12);
         assert_eq!(t.points[3].time_from_start, Time { sec: 3, nanosec: 0 });
-        assert!(trajectory(None, &names, 4, "world", &clocks).points.is_empty());
+        assert!(trajectory(None, &names, "world", &clocks).points.is_empty());
         assert_eq!(clocks.monotonic(clocks.ros(5_500_000_000)), 5_500_000_000);
         assert_eq!(clocks.monotonic(clocks.ros(7_000_000_000)), 7_000_000_000);
         assert_eq!(clocks.measured(clocks.ros(7_000_000_000)), 6_000_000_000, "a measurement is never in the future");

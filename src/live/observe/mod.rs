@@ -37,7 +37,7 @@ use foxglove::{Channel, McapWriterHandle, RawChannel, Schema, WebSocketServerHan
 use serde::Serialize;
 use tracing::{info, warn};
 
-use flowopt_client::records::{AnswerRecord, PlanRecord, SnapshotRecord};
+use flowopt_client::records::{AnswerRecord, SnapshotRecord};
 
 /// How long the watcher waits for an answer before it looks for a snapshot.
 const POLL: Duration = Duration::from_millis(2);
@@ -199,7 +199,7 @@ fn watch(context: &Arc<foxglove::Context>, prefix: &str, team: &Watched, stop: &
             if plan_drawn.elapsed() >= SCENE_EVERY {
                 plan_drawn = Instant::now();
                 // The plan followed now, carried by this answer or an earlier one.
-                let followed = record.plan.clone().or_else(|| PlanRecord::of(&msg)).filter(|_| record.followable);
+                let followed = msg.plan().ok().filter(|_| record.followable);
                 scene.log(&scene::plan(&record, followed.as_ref()));
             }
             log_json(&answers, &record);

@@ -9,7 +9,8 @@ use foxglove::messages::{
     TextPrimitive, Vector3, line_primitive,
 };
 
-use flowopt_client::records::{AnswerRecord, PlanRecord, SnapshotRecord};
+use flowopt_client::records::{AnswerRecord, SnapshotRecord};
+use flowopt_planner::plan::JointPlan;
 
 /// Points drawn along each robot's plan.
 const PATH_POINTS: usize = 32;
@@ -75,23 +76,23 @@ pub fn snapshot(s: &SnapshotRecord, radius: f64) -> SceneUpdate {
 
 /// The paths of the plan to follow (none: no paths) and the status of
 /// `answer` as a label.
-pub fn plan(answer: &AnswerRecord, plan: Option<&PlanRecord>) -> SceneUpdate {
+pub fn plan(answer: &AnswerRecord, plan: Option<&JointPlan>) -> SceneUpdate {
     let mut paths = entity("plan", &answer.team);
     let (r, g, b) = if answer.status == "Ok" { (0.1, 0.6, 0.9) } else { (0.9, 0.6, 0.1) };
     let Some(plan) = plan else {
         return SceneUpdate { entities: vec![paths, status(answer)], ..Default::default() };
     };
-    paths.lines = (0..plan.coefficients.len())
+    // Every robot at each instant, evaluated once per instant.
+    let instants: Vec<_> = (0..=PATH_POINTS).map(|k| plan.at(plan.horizon * k as f64 / PATH_POINTS as f64)).collect();
+    paths.lines = (0..plan.robots)
         .map(|i| LinePrimitive {
             r#type: line_primitive::Type::LineStrip as i32,
             pose: pose([0.0; 3]),
             thickness: 2.0,
             scale_invariant: true,
-            points: (0..=PATH_POINTS)
-                .map(|k| {
-                    let p = plan.position(i, plan.horizon * k as f64 / PATH_POINTS as f64);
-                    Point3 { x: p[0], y: p[1], z: p[2] }
-                })
+            points: instants
+                .iter()
+                .map(|at| Point3 { x: at[i].position.x, y: at[i].position.y, z: at[i].position.z })
                 .collect(),
             color: colour(r, g, b, 0.8),
             ..Default::default()

@@ -30,6 +30,7 @@ use anyhow::{Context, Result, bail};
 use clap::Args;
 use flowopt_client::clock::monotonic_ns;
 use flowopt_client::{Endpoint, JointTrajectory, PlanStatus, PlanSubscriber, Reason, StatePublisher, TeamChannel};
+use flowopt_daemon::config::{DaemonConfig, TeamConfig};
 use flowopt_planner::problem::{Obstacle, Problem, Team};
 use flowopt_planner::scenario::RandomScenario;
 use hdrhistogram::Histogram;
@@ -135,7 +136,7 @@ pub fn run(args: SimArgs) -> Result<()> {
     let (config, team_config) = args.daemon.team(args.team.as_deref())?;
     let watched = [Watched::new(&team_config.name, &team_config.team()?)];
     let observer = Observer::start(&args.observe, &config.ipc.prefix, &watched)?;
-    let report = simulate(&args);
+    let report = simulate(&args, &config, &team_config);
     if let Some(observer) = observer {
         observer.finish()?;
     }
@@ -307,11 +308,10 @@ impl Reported {
     }
 }
 
-fn simulate(args: &SimArgs) -> Result<SimReport> {
+fn simulate(args: &SimArgs, config: &DaemonConfig, team_config: &TeamConfig) -> Result<SimReport> {
     if !(args.rate_hz > 0.0 && args.seconds >= 0.0) {
         bail!("--rate-hz must be positive and --seconds not negative");
     }
-    let (config, team_config) = args.daemon.team(args.team.as_deref())?;
     let team = team_config.team()?;
     // The contract's check of a followable answer: moving obstacles over
     // the daemon's shorter check window.
