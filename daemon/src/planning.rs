@@ -580,12 +580,29 @@ mod tests {
         }
     }
 
+    /// Opens the racers of [`a_late_cold_plan_is_adopted_when_the_robots_are_still_at_its_start`].
+    static COLD_GATE: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+
     #[test]
     fn a_late_cold_plan_is_adopted_when_the_robots_are_still_at_its_start() {
-        let mut planner = TeamPlanner::preload(&config(16, "")).unwrap();
-        let problem = RandomScenario::new(planner.team().clone()).generate(5).unwrap();
+        let config = config(16, "");
+        let mut planner = TeamPlanner::preload(&config).unwrap();
+        let team = planner.team().clone();
+        // The same racers, held until the late answer is out: its one look
+        // for a result (the deadline long past) must come before any. With
+        // the preloaded race, a 16-robot cold plan of about a millisecond
+        // was now and then done first, while the test thread waited for a
+        // core between submitting and looking (CI, 2 cores).
+        let (racers, _) = flowopt_methods::build::members(&config.planner_settings(&team), &team).unwrap();
+        planner.cold = Race::start("t", racers, None, || {
+            while !COLD_GATE.load(std::sync::atomic::Ordering::Acquire) {
+                std::thread::sleep(Duration::from_millis(1));
+            }
+        });
+        let problem = RandomScenario::new(team).generate(5).unwrap();
         let long_ago = Instant::now() - Duration::from_secs(5);
         let late = answer(&mut planner, &problem, 1_000_000_000, long_ago);
+        COLD_GATE.store(true, std::sync::atomic::Ordering::Release);
         assert_eq!(late.follow, Follow::Stopping, "nothing in time: the robots rest");
         let results = planner.cold_results();
         let result = results.recv_timeout(Duration::from_secs(30)).expect("the cold plan keeps running");
