@@ -4,7 +4,7 @@
 
 use flowopt_planner::metrics::DENSE_FACTOR;
 use flowopt_planner::plan::JointPlan;
-use flowopt_planner::problem::Problem;
+use flowopt_planner::problem::{Problem, StartState};
 use nalgebra::Vector3;
 
 use crate::answer::Kind;
@@ -39,6 +39,22 @@ impl Held {
     /// this plan.
     pub(crate) fn deviation(&self, problem: &Problem, origin_ns: u64) -> f64 {
         self.plan.deviation(seconds(self.origin_ns, origin_ns), &problem.starts)
+    }
+
+    /// `world` with the robots where this plan has them at its time
+    /// (positions, velocities and accelerations): the start of a plan that
+    /// takes over from this one while the robots follow it (within the
+    /// follow tolerance, which every plan is verified to keep). A plan
+    /// started from the measurement instead starts off this one by the
+    /// tracking error and the mocap noise, and the robots, tracking this
+    /// one while it is made, leave its start by up to twice that.
+    pub(crate) fn anchored(&self, world: &World) -> World {
+        let mut problem = world.problem.clone();
+        let elapsed = seconds(self.origin_ns, world.origin_ns).max(0.0);
+        for (s, k) in problem.starts.iter_mut().zip(self.plan.at(elapsed)) {
+            *s = StartState { position: k.position, velocity: k.velocity, acceleration: k.acceleration };
+        }
+        World { problem, ..world.clone() }
     }
 }
 

@@ -19,6 +19,13 @@
 //!   replaces it; it is re-issued ([`Follow::Held`]) while it passes the
 //!   check above. One that no longer does is replaced at once by a stopping
 //!   plan verified against that world, or by nothing.
+//! - **Where new plans start.** While the robots follow the held plan (the
+//!   check above passes), a new plan starts where the held plan has them at
+//!   the snapshot's time, with its velocities and accelerations
+//!   ([`Held::anchored`]): the plans the controllers follow join without a
+//!   jump, and a plan that comes late still starts where the robots are
+//!   (they kept following the held one) up to the tracking error the
+//!   follow tolerance allows. Otherwise a plan starts from the measurement.
 //! - **Warm start**, only from a plan the robots are on: when the goals are
 //!   unchanged and the measured state is within `warm_tolerance_m` of the
 //!   held plan at the snapshot's time, the held plan shifted in time
@@ -205,10 +212,16 @@ impl TeamPlanner {
                 && same_goals(&h.goals, &world.problem)
                 && deviation.is_some_and(|d| d <= self.rules.warm_tolerance)
         });
+        // New plans start where the held plan has the robots while they
+        // follow it, else from the measurement.
+        let start = match (&self.held, &checked) {
+            (Some(h), Some(Ok(()))) => h.anchored(&world),
+            _ => world.clone(),
+        };
         if let Some(h) = warm_from {
             let (plan, origin) = (h.plan.clone(), h.origin_ns);
             let warm_until = until.min(Instant::now() + self.rules.deadline / 2);
-            match self.refine(&plan, seconds(origin, origin_ns), &world, warm_until, &mut answer) {
+            match self.refine(&plan, seconds(origin, origin_ns), &start, warm_until, &mut answer) {
                 Ok(Some(candidate)) => {
                     answer.warm = true;
                     return self.adopt(candidate, answer);
@@ -238,7 +251,7 @@ impl TeamPlanner {
             .is_some_and(|p| same_goals(&p.goals, &world.problem) && p.obstacles == world.problem.obstacles.len());
         if !running {
             // The snapshot's sequence seeds the learned planner's noise.
-            let id = self.cold.submit(&world.problem, sequence, origin_ns, sequence);
+            let id = self.cold.submit(&start.problem, sequence, origin_ns, sequence);
             self.pending = Some(Pending {
                 id,
                 goals: world.problem.goals.clone(),
@@ -313,7 +326,8 @@ impl TeamPlanner {
     /// Takes one cold result: the answer if its plan was adopted.
     fn take_cold(&mut self, result: RaceResult, answer: &mut Answer, until: Instant) -> Option<Answer> {
         let verified = result.outcome.as_ref().is_ok_and(Planned::verified);
-        debug!(by = result.by, verified, "cold result");
+        let stop = result.outcome.as_ref().map(|p| p.stop);
+        debug!(by = result.by, verified, ?stop, "cold result");
         let pending = self.pending.as_mut().filter(|p| p.id == result.request.id)?;
         pending.outstanding = pending.outstanding.saturating_sub(1);
         let planned = result.outcome.ok();
@@ -426,13 +440,15 @@ mod tests {
     }
 
     /// Checks that the held plan starts at `problem`'s state at its origin
-    /// and keeps the true sizes on the dense grid, and, from starts apart,
-    /// the tracking buffer too: robots grown by the follow tolerance
-    /// (default 5 mm) do not touch.
+    /// (within the follow tolerance: a plan made while the robots followed
+    /// the one before starts on that one) and keeps the true sizes on the
+    /// dense grid, and, from starts apart, the tracking buffer too: robots
+    /// grown by the follow tolerance (default 5 mm) do not touch.
     fn assert_verified_from(planner: &TeamPlanner, problem: &Problem) {
         let held = planner.held().expect("a held plan");
         let starts: Vec<StartState> = held.plan.at(0.0).iter().map(|k| StartState::at_rest(k.position)).collect();
-        assert!(held.plan.deviation(0.0, &problem.starts) < 1e-6, "starts at the measured state");
+        let off = held.plan.deviation(0.0, &problem.starts);
+        assert!(off <= planner.rules.follow_tolerance, "starts {off} m from the measured state");
         let team = Team { horizon: held.plan.horizon, ..problem.team.clone() };
         let check = Problem { team: team.clone(), starts, ..problem.clone() };
         let m = Metrics::measure(&check, &held.plan);
@@ -580,6 +596,21 @@ mod tests {
         }
     }
 
+    /// Gives `planner` its own racers again (`config`'s), each running
+    /// `wait` before every request.
+    fn hold_racers(planner: &mut TeamPlanner, config: &TeamConfig, wait: fn()) {
+        let team = planner.team().clone();
+        let (racers, _) = flowopt_methods::build::members(&config.planner_settings(&team), &team).unwrap();
+        planner.cold = Race::start("t", racers, None, wait);
+    }
+
+    /// Returns once `gate` is open.
+    fn wait_for(gate: &std::sync::atomic::AtomicBool) {
+        while !gate.load(std::sync::atomic::Ordering::Acquire) {
+            std::thread::sleep(Duration::from_millis(1));
+        }
+    }
+
     /// Opens the racers of [`a_late_cold_plan_is_adopted_when_the_robots_are_still_at_its_start`].
     static COLD_GATE: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
 
@@ -593,12 +624,7 @@ mod tests {
         // the preloaded race, a 16-robot cold plan of about a millisecond
         // was now and then done first, while the test thread waited for a
         // core between submitting and looking (CI, 2 cores).
-        let (racers, _) = flowopt_methods::build::members(&config.planner_settings(&team), &team).unwrap();
-        planner.cold = Race::start("t", racers, None, || {
-            while !COLD_GATE.load(std::sync::atomic::Ordering::Acquire) {
-                std::thread::sleep(Duration::from_millis(1));
-            }
-        });
+        hold_racers(&mut planner, &config, || wait_for(&COLD_GATE));
         let problem = RandomScenario::new(team).generate(5).unwrap();
         let long_ago = Instant::now() - Duration::from_secs(5);
         let late = answer(&mut planner, &problem, 1_000_000_000, long_ago);
@@ -610,6 +636,50 @@ mod tests {
         assert_eq!((adopted.follow, adopted.why), (Follow::New, Why::None));
         assert_eq!(planner.held().unwrap().kind, Kind::Goals);
         assert_verified_from(&planner, &problem);
+    }
+
+    /// Opens the racers of [`a_plan_made_while_the_robots_follow_the_held_one_starts_on_it`].
+    static ANCHOR_GATE: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+
+    #[test]
+    fn a_plan_made_while_the_robots_follow_the_held_one_starts_on_it() {
+        let config = config(16, "");
+        let mut planner = TeamPlanner::preload(&config).unwrap();
+        let team = planner.team().clone();
+        let problem = RandomScenario::new(team.clone()).generate(5).unwrap();
+        let on_plan = on_the_plan_after(&mut planner, &problem, 0.4);
+        let held = planner.held().unwrap().plan.clone();
+        // The same racers, held until the late answer is out (as in
+        // `a_late_cold_plan_is_adopted_when_the_robots_are_still_at_its_start`).
+        hold_racers(&mut planner, &config, || wait_for(&ANCHOR_GATE));
+        // New goals (back to the starts), measured 3 mm to one side of the
+        // plan: within the follow tolerance (5 mm).
+        let shifted = |problem: &Problem, dx: f64| {
+            let mut p = problem.clone();
+            p.starts.iter_mut().for_each(|s| s.position.x += dx);
+            p
+        };
+        let mut back = shifted(&on_plan, 0.003);
+        back.goals = problem.starts.iter().map(|s| s.position).collect();
+        let long_ago = Instant::now() - Duration::from_secs(5);
+        let late = answer(&mut planner, &back, 1_400_000_000, long_ago);
+        ANCHOR_GATE.store(true, std::sync::atomic::Ordering::Release);
+        assert_eq!((late.follow, late.why), (Follow::Held, Why::DeadlineMissed), "followed while the cold plan runs");
+        // Then measured 3 mm to the other side of it: 6 mm from the first
+        // measurement, 3 mm from the plan.
+        let mut later = shifted(&on_plan, -0.003);
+        later.goals = back.goals.clone();
+        planner.newest = Some(World { problem: later, origin_ns: 1_400_000_000, sequence: 2 });
+        let results = planner.cold_results();
+        let result = results.recv_timeout(Duration::from_secs(30)).expect("the cold plan keeps running");
+        let adopted = planner.on_cold(result).expect("adopted");
+        assert_eq!((adopted.follow, adopted.why), (Follow::New, Why::None));
+        let new = planner.held().unwrap();
+        assert_eq!(new.origin_ns, 1_400_000_000, "adopted as planned, not repaired from a later state");
+        for (k, h) in new.plan.at(0.0).iter().zip(held.at(0.4)) {
+            assert!((k.position - h.position).norm() < 1e-6, "starts where the held plan has the robot");
+            assert!((k.velocity - h.velocity).norm() < 1e-6, "at its velocity");
+        }
     }
 
     /// Plans `problem` from rest, then returns the problem of the robots
