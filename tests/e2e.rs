@@ -84,6 +84,27 @@ fn stale_state_is_reported() {
 }
 
 #[test]
+fn a_lab_day_changes_goals_kicks_robots_and_sends_walkers_through_the_snapshots() {
+    let setup = Setup::new("lab");
+    let _daemon = setup.daemon();
+    let day = ["--goal-changes", "120", "--gusts", "120", "--walkers", "2"];
+    let out = setup.sim(3.0).args(day).output().unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let report: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let lab = &report["lab"];
+    assert_eq!(lab["day"]["walkers"].as_u64(), Some(2), "{report}");
+    assert_eq!(lab["walkers"].as_u64(), Some(2), "two walkers entered and are still crossing: {report}");
+    // 4 robots, 3 s at 120 per robot-minute: 24 of each expected.
+    assert!(lab["gusts"].as_u64().unwrap() >= 5, "{report}");
+    assert!(report["closest_obstacle_approach"].is_number(), "the walkers were there: {report}");
+    assert!(report["plans"].as_u64().unwrap() > 0, "{report}");
+    let bad = setup.sim(1.0).arg("--gusts=-1").output().unwrap();
+    assert!(!bad.status.success());
+    let line = String::from_utf8_lossy(&bad.stderr);
+    assert!(line.contains("must be finite and not negative"), "{line}");
+}
+
+#[test]
 fn a_killed_and_restarted_client_is_served_again() {
     let setup = Setup::new("client");
     let _daemon = setup.daemon();

@@ -55,6 +55,8 @@ pub struct DemoArgs {
     /// Print one JSON object instead of text.
     #[arg(long)]
     json: bool,
+    #[command(flatten)]
+    lab: crate::live::sim::LabArgs,
     /// Serve the daemon's Prometheus metrics on this address
     /// (`flowopt serve --metrics`).
     #[arg(long, value_name = "ADDR")]
@@ -134,6 +136,7 @@ pub fn run(args: DemoArgs, trace_out: Option<PathBuf>) -> Result<()> {
         .args(["--seconds", &args.seconds.to_string(), "--rate-hz", &args.rate_hz.to_string()])
         .args(["--seed", &args.seed.to_string()])
         .args(args.observe.child_args())
+        .args(args.lab.child_args())
         .stdin(Stdio::null())
         .stdout(Stdio::piped())
         .stderr(Stdio::inherit());

@@ -18,6 +18,8 @@
 //! the team: [`world`]) and reports every fault's window separately.
 
 mod check;
+mod lab;
+mod report;
 mod robots;
 mod tally;
 mod world;
@@ -34,13 +36,15 @@ use flowopt_daemon::config::{DaemonConfig, TeamConfig};
 use flowopt_planner::problem::{Obstacle, Problem, Team};
 use flowopt_planner::scenario::RandomScenario;
 use hdrhistogram::Histogram;
-use serde::{Deserialize, Serialize};
 use tracing::warn;
 
 use crate::live::daemon_args::DaemonArgs;
 use crate::live::faults::{Fault, SCHEDULE, Scheduled};
 use crate::live::observe::{ObserveArgs, Observer, Watched};
 use check::{Failure, check};
+use lab::Lab;
+pub use lab::LabArgs;
+pub use report::{FaultReport, SimReport, print_report};
 use robots::Robots;
 pub use tally::Tally;
 use world::{SimObstacle, World};
@@ -79,56 +83,8 @@ pub struct SimArgs {
     /// Print one JSON object instead of text.
     #[arg(long)]
     pub json: bool,
-}
-
-/// One fault's window of a run.
-#[derive(Debug, Clone, Serialize, Deserialize)]
-pub struct FaultReport {
-    /// The fault.
-    pub fault: String,
-    /// When it was injected (s into the run).
-    pub at_s: f64,
-    /// Where its window ends (s).
-    pub until_s: f64,
-    /// What the window saw.
-    #[serde(flatten)]
-    pub tally: Tally,
-}
-
-/// What a simulation run saw.
-#[derive(Debug, Clone, Default, Serialize, Deserialize)]
-pub struct SimReport {
-    /// Seconds simulated (after the first answer).
-    pub seconds: f64,
-    /// Control rate (Hz).
-    pub rate_hz: f64,
-    /// Robots.
-    pub robots: usize,
-    /// Snapshots published.
-    pub snapshots: u64,
-    /// Messages answering the newest snapshot published when they arrived.
-    pub plans_answering_newest: u64,
-    /// Snapshot timestamp to the receipt of its answer, median (ms).
-    pub latency_p50_ms: f64,
-    /// 99th percentile (ms).
-    pub latency_p99_ms: f64,
-    /// 99.9th percentile (ms).
-    pub latency_p999_ms: f64,
-    /// Maximum (ms).
-    pub latency_max_ms: f64,
-    /// New plans that were warm-started.
-    pub warm: u64,
-    /// The whole run.
-    #[serde(flatten)]
-    pub overall: Tally,
-    /// Mean distance from the followed position (m).
-    pub mean_tracking_error_m: f64,
-    /// Largest distance from the followed position (m).
-    pub max_tracking_error_m: f64,
-    /// Goal sets reached by the whole team.
-    pub goal_sets_reached: u64,
-    /// Per injected fault (with `--faults`).
-    pub faults: Vec<FaultReport>,
+    #[command(flatten)]
+    pub lab: LabArgs,
 }
 
 /// Runs `flowopt sim`.
@@ -147,52 +103,6 @@ pub fn run(args: SimArgs) -> Result<()> {
         print_report(&report);
     }
     Ok(())
-}
-
-/// Prints a report for people.
-pub fn print_report(r: &SimReport) {
-    let t = &r.overall;
-    println!(
-        "{} robots, {:.0} s at {:.0} Hz: {} snapshots, {} messages",
-        r.robots, r.seconds, r.rate_hz, r.snapshots, t.plans
-    );
-    println!("statuses         {:?} (warm-started {})", t.statuses, r.warm);
-    println!("reasons          {:?}", t.reasons);
-    println!("answering newest {} of {}", r.plans_answering_newest, t.plans);
-    println!(
-        "state-to-answer  p50 {:.2} ms, p99 {:.2} ms, p99.9 {:.2} ms, max {:.2} ms",
-        r.latency_p50_ms, r.latency_p99_ms, r.latency_p999_ms, r.latency_max_ms
-    );
-    println!(
-        "contacts         {} robot-robot (closest {:.3} of the separation), {} robot-obstacle (closest {:.3})",
-        t.contacts,
-        t.closest_approach.unwrap_or(f64::NAN),
-        t.obstacle_contacts,
-        t.closest_obstacle_approach.unwrap_or(f64::NAN)
-    );
-    println!(
-        "followed         unverified {} (through a reported obstacle {})",
-        t.followed_unverified, t.followed_through_obstacle
-    );
-    println!("answer time      max {:.2} ms, {} after the deadline", t.answer_max_ms, t.late_answers);
-    println!("without a plan   longest {:.0} ms", t.longest_without_plan_ms);
-    println!("tracking error   mean {:.4} m, max {:.4} m", r.mean_tracking_error_m, r.max_tracking_error_m);
-    println!("goal sets        {} reached", r.goal_sets_reached);
-    for f in &r.faults {
-        println!(
-            "fault {:<18} at {:>5.1} s: contacts {} + {} obstacle, closest {:.3}, unverified {}, longest without plan {:.0} ms, injected {} (rejected as expected {}), statuses {:?}",
-            f.fault,
-            f.at_s,
-            f.tally.contacts,
-            f.tally.obstacle_contacts,
-            f.tally.closest_approach.unwrap_or(f64::NAN),
-            f.tally.followed_unverified,
-            f.tally.longest_without_plan_ms,
-            f.tally.injected,
-            f.tally.rejected_as_expected,
-            f.tally.statuses
-        );
-    }
 }
 
 /// A controller process's ports (dropped and recreated by a restart).
@@ -312,6 +222,8 @@ fn simulate(args: &SimArgs, config: &DaemonConfig, team_config: &TeamConfig) -> 
     if !(args.rate_hz > 0.0 && args.seconds >= 0.0) {
         bail!("--rate-hz must be positive and --seconds not negative");
     }
+    let day = args.lab.day();
+    day.check().map_err(anyhow::Error::msg)?;
     let team = team_config.team()?;
     // The contract's check of a followable answer: moving obstacles over
     // the daemon's shorter check window.
@@ -319,6 +231,8 @@ fn simulate(args: &SimArgs, config: &DaemonConfig, team_config: &TeamConfig) -> 
     let scenario = RandomScenario::new(team.clone());
     let first = scenario.generate(args.seed).context("drawing the start positions")?;
     let mut robots = Robots::new(&first, args.seed);
+    let mut lab = (!day.is_quiet()).then(|| Lab::new(day, team.robots, args.seed));
+    robots.lag_ns = lab.as_ref().map_or(0, Lab::lag_ns);
     let channel = TeamChannel::new(&config.ipc.prefix, &team_config.name)?;
     let mut controller = Some(Controller::open(&channel)?);
     let period = Duration::from_secs_f64(1.0 / args.rate_hz);
@@ -436,9 +350,13 @@ fn simulate(args: &SimArgs, config: &DaemonConfig, team_config: &TeamConfig) -> 
             error_ticks += 1;
             report.max_tracking_error_m = report.max_tracking_error_m.max(motion.tracking.1);
         }
+        if let Some(lab) = lab.as_mut() {
+            lab.tick(t, period_s, &mut robots, &mut world);
+        }
         if robots.arrived() {
             report.goal_sets_reached += 1;
             robots.goal = new_goals(&scenario, args.seed, &mut goal_round, &world, t)?;
+            lab.iter_mut().for_each(Lab::new_goal_set);
         }
         // Controller-side faults due now.
         for (k, s) in schedule.iter().enumerate() {
@@ -520,6 +438,7 @@ fn simulate(args: &SimArgs, config: &DaemonConfig, team_config: &TeamConfig) -> 
         counters.each(since, |tally| tally.without_plan((t - since) * 1e3));
     }
     report.seconds = t;
+    report.lab = lab.map(|lab| lab.report(t));
     report.mean_tracking_error_m = if error_ticks > 0 { error_sum / error_ticks as f64 } else { 0.0 };
     let h = &counters.latency_us;
     if !h.is_empty() {

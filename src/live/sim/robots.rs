@@ -63,6 +63,12 @@ pub struct Robots {
     touching_obstacle: Vec<Vec<bool>>,
     rng: ChaCha8Rng,
     disturbance: Vec<Vector3<f64>>,
+    /// How late the robots act on their controllers' commands (ns): an
+    /// actuation delay.
+    pub lag_ns: u64,
+    /// Commands issued and not yet acted on, oldest first, with when they
+    /// act (ns).
+    pending: std::collections::VecDeque<(u64, Vec<Vector3<f64>>)>,
 }
 
 impl Robots {
@@ -79,6 +85,8 @@ impl Robots {
             touching_obstacle: vec![Vec::new(); n],
             rng: ChaCha8Rng::seed_from_u64(seed),
             disturbance: vec![Vector3::zeros(); n],
+            lag_ns: 0,
+            pending: std::collections::VecDeque::new(),
         }
     }
 
@@ -112,16 +120,19 @@ impl Robots {
                 self.velocity.iter_mut().for_each(|v| *v = Vector3::zeros());
             } else {
                 let target = desired.map(|f| f.at(at));
-                for i in 0..n {
-                    let u = match &target {
+                let command: Vec<Vector3<f64>> = (0..n)
+                    .map(|i| match &target {
                         Some(d) => {
                             d[i].acceleration
                                 + KP * (d[i].position - self.position[i])
                                 + KD * (d[i].velocity - self.velocity[i])
                         }
                         None => -KD * self.velocity[i],
-                    };
-                    self.velocity[i] += (u + self.disturbance[i]) * h;
+                    })
+                    .collect();
+                let u = self.acting(at, command);
+                for i in 0..n {
+                    self.velocity[i] += (u[i] + self.disturbance[i]) * h;
                     self.position[i] += self.velocity[i] * h;
                 }
             }
@@ -177,11 +188,33 @@ impl Robots {
         self.touching_obstacle.iter_mut().for_each(Vec::clear);
     }
 
+    /// The commands acting at `at_ns`, `command` just issued: itself
+    /// without a lag, else the newest one issued at least `lag_ns` ago
+    /// (none yet: no acceleration).
+    fn acting(&mut self, at_ns: u64, command: Vec<Vector3<f64>>) -> Vec<Vector3<f64>> {
+        if self.lag_ns == 0 {
+            return command;
+        }
+        let n = command.len();
+        self.pending.push_back((at_ns + self.lag_ns, command));
+        let mut acting = None;
+        while self.pending.front().is_some_and(|(due, _)| *due <= at_ns) {
+            acting = self.pending.pop_front().map(|(_, u)| u);
+        }
+        let acting = acting.unwrap_or_else(|| vec![Vector3::zeros(); n]);
+        // The newest command due keeps acting until a later one is due.
+        self.pending.push_front((at_ns, acting.clone()));
+        acting
+    }
+
     /// Whether every robot is at its goal and stopped.
     pub fn arrived(&self) -> bool {
-        (0..self.team.robots).all(|i| {
-            (self.position[i] - self.goal[i]).norm() < ARRIVED_DISTANCE && self.velocity[i].norm() < ARRIVED_SPEED
-        })
+        (0..self.team.robots).all(|i| self.at_goal(i))
+    }
+
+    /// Whether robot `i` is at its goal and stopped.
+    pub fn at_goal(&self, i: usize) -> bool {
+        (self.position[i] - self.goal[i]).norm() < ARRIVED_DISTANCE && self.velocity[i].norm() < ARRIVED_SPEED
     }
 
     /// The state as the mocap measures it (with noise), with `obstacles`:
@@ -203,5 +236,26 @@ impl Robots {
             })
             .collect();
         Problem { team: self.team.clone(), starts, goals: self.goal.clone(), obstacles }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use flowopt_planner::problem::Dim;
+    use flowopt_planner::scenario::RandomScenario;
+
+    #[test]
+    fn a_lagging_robot_acts_on_each_command_that_much_later() {
+        let problem = RandomScenario::new(Team::default_for(Dim::Two, 2)).generate(1).unwrap();
+        let mut robots = Robots::new(&problem, 1);
+        let push = |x: f64| vec![Vector3::new(x, 0.0, 0.0); 2];
+        assert_eq!(robots.acting(0, push(1.0)), push(1.0), "no lag: at once");
+        robots.lag_ns = 10;
+        assert_eq!(robots.acting(0, push(1.0)), push(0.0), "nothing issued 10 ns ago");
+        assert_eq!(robots.acting(5, push(2.0)), push(0.0));
+        assert_eq!(robots.acting(10, push(3.0)), push(1.0), "the command of 10 ns ago");
+        assert_eq!(robots.acting(12, push(4.0)), push(1.0), "acting until the next is due");
+        assert_eq!(robots.acting(16, push(5.0)), push(2.0));
     }
 }

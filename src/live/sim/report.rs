@@ -1,0 +1,111 @@
+//! What a simulation run reports: the run's tally, each fault's window and
+//! the lab's day, as JSON or for people.
+
+use serde::{Deserialize, Serialize};
+
+use super::lab::LabReport;
+use super::tally::Tally;
+
+/// One fault's window of a run.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct FaultReport {
+    /// The fault.
+    pub fault: String,
+    /// When it was injected (s into the run).
+    pub at_s: f64,
+    /// Where its window ends (s).
+    pub until_s: f64,
+    /// What the window saw.
+    #[serde(flatten)]
+    pub tally: Tally,
+}
+
+/// What a simulation run saw.
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
+pub struct SimReport {
+    /// Seconds simulated (after the first answer).
+    pub seconds: f64,
+    /// Control rate (Hz).
+    pub rate_hz: f64,
+    /// Robots.
+    pub robots: usize,
+    /// Snapshots published.
+    pub snapshots: u64,
+    /// Messages answering the newest snapshot published when they arrived.
+    pub plans_answering_newest: u64,
+    /// Snapshot timestamp to the receipt of its answer, median (ms).
+    pub latency_p50_ms: f64,
+    /// 99th percentile (ms).
+    pub latency_p99_ms: f64,
+    /// 99.9th percentile (ms).
+    pub latency_p999_ms: f64,
+    /// Maximum (ms).
+    pub latency_max_ms: f64,
+    /// New plans that were warm-started.
+    pub warm: u64,
+    /// The whole run.
+    #[serde(flatten)]
+    pub overall: Tally,
+    /// Mean distance from the followed position (m).
+    pub mean_tracking_error_m: f64,
+    /// Largest distance from the followed position (m).
+    pub max_tracking_error_m: f64,
+    /// Goal sets reached by the whole team.
+    pub goal_sets_reached: u64,
+    /// Per injected fault (with `--faults`).
+    pub faults: Vec<FaultReport>,
+    /// The lab's day (with `--lab` or its options).
+    pub lab: Option<LabReport>,
+}
+
+/// Prints a report for people.
+pub fn print_report(r: &SimReport) {
+    let t = &r.overall;
+    println!(
+        "{} robots, {:.0} s at {:.0} Hz: {} snapshots, {} messages",
+        r.robots, r.seconds, r.rate_hz, r.snapshots, t.plans
+    );
+    println!("statuses         {:?} (warm-started {})", t.statuses, r.warm);
+    println!("reasons          {:?}", t.reasons);
+    println!("answering newest {} of {}", r.plans_answering_newest, t.plans);
+    println!(
+        "state-to-answer  p50 {:.2} ms, p99 {:.2} ms, p99.9 {:.2} ms, max {:.2} ms",
+        r.latency_p50_ms, r.latency_p99_ms, r.latency_p999_ms, r.latency_max_ms
+    );
+    println!(
+        "contacts         {} robot-robot (closest {:.3} of the separation), {} robot-obstacle (closest {:.3})",
+        t.contacts,
+        t.closest_approach.unwrap_or(f64::NAN),
+        t.obstacle_contacts,
+        t.closest_obstacle_approach.unwrap_or(f64::NAN)
+    );
+    println!(
+        "followed         unverified {} (through a reported obstacle {})",
+        t.followed_unverified, t.followed_through_obstacle
+    );
+    println!("answer time      max {:.2} ms, {} after the deadline", t.answer_max_ms, t.late_answers);
+    println!("without a plan   longest {:.0} ms", t.longest_without_plan_ms);
+    println!("tracking error   mean {:.4} m, max {:.4} m", r.mean_tracking_error_m, r.max_tracking_error_m);
+    println!("goal sets        {} reached", r.goal_sets_reached);
+    if let Some(lab) = &r.lab {
+        println!(
+            "lab              goals reached {} ({:.2} per robot-minute), goals changed mid-flight {}, gusts {}, walkers {}",
+            lab.goals_reached, lab.goals_per_robot_minute, lab.goal_changes, lab.gusts, lab.walkers
+        );
+    }
+    for f in &r.faults {
+        println!(
+            "fault {:<18} at {:>5.1} s: contacts {} + {} obstacle, closest {:.3}, unverified {}, longest without plan {:.0} ms, injected {} (rejected as expected {}), statuses {:?}",
+            f.fault,
+            f.at_s,
+            f.tally.contacts,
+            f.tally.obstacle_contacts,
+            f.tally.closest_approach.unwrap_or(f64::NAN),
+            f.tally.followed_unverified,
+            f.tally.longest_without_plan_ms,
+            f.tally.injected,
+            f.tally.rejected_as_expected,
+            f.tally.statuses
+        );
+    }
+}
