@@ -365,6 +365,23 @@ mod tests {
     }
 
     #[test]
+    fn the_shipped_big_teams_fit_their_box_in_time_and_resolution() {
+        for (file, robots) in [("team64.toml", 64), ("team128.toml", 128)] {
+            let config = shipped(file);
+            let cfg = &config.teams[0];
+            let team = cfg.team().unwrap();
+            assert_eq!(team.robots, robots, "{file}");
+            // The farthest trip, the box's diagonal, within max_speed.
+            let w = &team.workspace;
+            let diagonal = ((w.max[0] - w.min[0]).powi(2) + (w.max[1] - w.min[1]).powi(2)).sqrt();
+            assert!(team.horizon * cfg.max_speed >= diagonal, "{file}: {} s for {diagonal} m", team.horizon);
+            // The degree and K the optimiser gives that box.
+            let resolved = team.clone().resolved_for_workspace();
+            assert_eq!((team.degree, team.samples), (resolved.degree, resolved.samples), "{file}");
+        }
+    }
+
+    #[test]
     fn the_shipped_3d_config_loads_with_3d_weights() {
         let config = shipped("team3d.toml");
         let team = config.teams[0].team().unwrap();

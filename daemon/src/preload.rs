@@ -6,7 +6,7 @@
 use std::time::Duration;
 
 use flowopt_methods::build::members;
-use flowopt_methods::settings::{buffered, tracking_buffer};
+use flowopt_methods::settings::{PlannerSettings, buffered, tracking_buffer};
 use flowopt_methods::{PlanError, Planner, Race};
 use flowopt_planner::am::{AmSettings, EngineError, EngineSet, Objective, Recheck};
 use flowopt_planner::problem::Team;
@@ -39,6 +39,13 @@ pub enum PreloadError {
     Planner(#[from] PlanError),
 }
 
+/// The worker's and the cold race's shares of `threads`: the worker's
+/// half rounded up, the rest to the cold race, one each at least.
+fn split_threads(threads: usize) -> (usize, usize) {
+    let worker = threads.div_ceil(2).max(1);
+    (worker, threads.saturating_sub(worker).max(1))
+}
+
 impl TeamPlanner {
     /// Builds every engine (basis, sample grids, KKT factorisations) the
     /// team can need, so that no snapshot waits for one, and starts the
@@ -49,9 +56,12 @@ impl TeamPlanner {
         let settings = config.planner_settings(&team);
         let buffer = tracking_buffer(&team, config.follow_tolerance_m);
         let max = config.max_obstacles;
-        // Warm replans and stopping plans of big teams on the settings'
-        // threads, as the optimiser's cold plans (the same plans on any).
-        let threads = settings.threads();
+        // Warm replans and stopping plans of big teams run while a cold
+        // plan may run too: the two crews share the settings' threads (the
+        // same plans on any count), so that spinning members never outnumber
+        // the cores the controllers also need.
+        let (threads, cold_threads) = split_threads(settings.threads());
+        let settings = PlannerSettings { threads: cold_threads, ..settings };
         let filter_settings =
             buffered(AmSettings { max_iterations: WARM_ITERATIONS, threads, ..AmSettings::safety_filter() }, buffer);
         let filters = EngineSet::preloaded(&team, Objective::Projection, filter_settings, max)?;
@@ -107,5 +117,18 @@ impl TeamPlanner {
             pending: None,
             fresh: None,
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::split_threads;
+
+    #[test]
+    fn the_worker_and_the_cold_race_share_the_threads() {
+        assert_eq!(split_threads(1), (1, 1), "one each at least");
+        assert_eq!(split_threads(2), (1, 1));
+        assert_eq!(split_threads(3), (2, 1));
+        assert_eq!(split_threads(15), (8, 7));
     }
 }

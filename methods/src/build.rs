@@ -8,13 +8,16 @@
 //!   where `learned.init` names one) and the optimiser race, where the
 //!   team has at most `race_max_robots` robots and the weights plan in its
 //!   dimension and basis; else the optimiser alone, and [`members`] says
-//!   why;
+//!   why. Teams too small for the optimiser's crew
+//!   ([`flowopt_planner::am::CREW_MIN_ROBOTS`]) leave cores idle: there
+//!   [`VARIANTS`] race beside them, one per core the settings' `threads`
+//!   leaves after the learned pipeline and the optimiser;
 //! - `safety-filter`: the filter's benchmark ([`PerturbedFilter`]).
 
 use flowopt_models::ModelError;
 use flowopt_models::pipeline::{LearnedPipeline, LearnedPlanner};
 use flowopt_models::shipped::{Weights, WeightsRef};
-use flowopt_planner::am::Objective;
+use flowopt_planner::am::{AmSettings, CREW_MIN_ROBOTS, Objective, RhoSchedule};
 use flowopt_planner::method::{PlanError, Planner};
 use flowopt_planner::optimiser::Optimiser;
 use flowopt_planner::problem::{Dim, Team};
@@ -27,7 +30,7 @@ use crate::settings::PlannerSettings;
 /// The learned pipeline as `method` runs it with `settings`, for teams of
 /// `dim` (the shipped weights are picked by the dimension).
 pub fn learned(settings: &PlannerSettings, method: Method, dim: Dim) -> Result<LearnedPipeline, ModelError> {
-    let mut pipeline = settings.learned.clone();
+    let mut pipeline = settings.learned();
     let init = match method {
         Method::Flowopt => Some(pipeline.init.clone().unwrap_or(WeightsRef::Shipped)),
         Method::FlowNoInit => None,
@@ -57,6 +60,22 @@ fn learned_for(
     Ok(pipeline.planner().model().check(team).map(|()| pipeline).map_err(|e| e.to_string()))
 }
 
+/// A variant: its name in the race and how it changes the optimiser's
+/// settings.
+pub type Variant = (&'static str, fn(AmSettings) -> AmSettings);
+
+/// Optimiser variants `auto` races beside the optimiser where cores are
+/// idle, in the order they are added: the penalty doubling every 100
+/// iterations instead of 50 (docs/BENCHMARKS.md, "What each change does"),
+/// and no veering start (the straight lines). On a 16-core host they made
+/// `auto` faster with obstacles and crossings (16 robots + 8 obstacles
+/// 4.13 against 7.37 ms) and no worse elsewhere beyond its noise
+/// (docs/BENCHMARKS.md, "Threads").
+pub const VARIANTS: [Variant; 2] = [
+    ("optimiser-slow-penalty", |s| AmSettings { rho: RhoSchedule { every: 100, ..s.rho }, ..s }),
+    ("optimiser-straight", |s| AmSettings { veer: false, ..s }),
+];
+
 /// The planners a method runs for a team (racing where there are several),
 /// and, where `auto` plans with the optimiser alone, why.
 pub type Members = (Vec<Box<dyn Planner>>, Option<String>);
@@ -82,12 +101,26 @@ pub fn members(settings: &PlannerSettings, team: &Team) -> Result<Members, PlanE
             } else {
                 learned_for(settings, method, team)?
             };
-            match learned {
+            let (mut racers, why): Members = match learned {
                 Ok(pipeline) => (vec![Box::new(pipeline), optimiser()], None),
                 Err(why) => (vec![optimiser()], Some(why)),
-            }
+            };
+            racers.extend(variants(settings, team, settings.threads().saturating_sub(racers.len())));
+            (racers, why)
         }
     })
+}
+
+/// The [`VARIANTS`] that race for `team` on `spare` idle cores: one per
+/// core, none for a team the optimiser's crew plans (its threads have the
+/// cores).
+fn variants(settings: &PlannerSettings, team: &Team, spare: usize) -> Vec<Box<dyn Planner>> {
+    let spare = if team.robots < CREW_MIN_ROBOTS { spare } else { 0 };
+    VARIANTS
+        .iter()
+        .take(spare)
+        .map(|(name, vary)| Box::new(Optimiser::new(vary(settings.optimiser())).named(name)) as Box<dyn Planner>)
+        .collect()
 }
 
 /// The planner of `settings.method` for `team`: the race of its members, or
@@ -111,8 +144,27 @@ mod tests {
     use flowopt_planner::scenario::RandomScenario;
 
     #[test]
-    fn auto_races_where_the_weights_plan_and_says_why_it_does_not_elsewhere() {
+    fn idle_cores_race_optimiser_variants_for_teams_the_crew_does_not_plan() {
         let settings = PlannerSettings::default();
+        let names = |robots, spare| -> Vec<&str> {
+            variants(&settings, &Team::default_for(Dim::Two, robots), spare).iter().map(|m| m.name()).collect()
+        };
+        assert_eq!(names(16, 0), Vec::<&str>::new());
+        assert_eq!(names(16, 1), vec!["optimiser-slow-penalty"]);
+        assert_eq!(names(16, 9), vec!["optimiser-slow-penalty", "optimiser-straight"]);
+        assert_eq!(names(CREW_MIN_ROBOTS, 9), Vec::<&str>::new(), "the crew has the cores");
+        // Each variant is the optimiser with one knob changed.
+        let base = settings.optimiser();
+        let slow = VARIANTS[0].1(base);
+        assert_eq!((slow.rho.every, slow.veer), (100, base.veer));
+        let straight = VARIANTS[1].1(base);
+        assert_eq!((straight.rho, straight.veer), (base.rho, false));
+    }
+
+    #[test]
+    fn auto_races_where_the_weights_plan_and_says_why_it_does_not_elsewhere() {
+        // One thread: no idle cores for variants.
+        let settings = PlannerSettings { threads: 1, ..PlannerSettings::default() };
         let names = |team: &Team| {
             let (members, why) = members(&settings, team).unwrap();
             (members.iter().map(|m| m.name()).collect::<Vec<_>>(), why)

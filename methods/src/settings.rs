@@ -65,9 +65,9 @@ pub struct PlannerSettings {
     pub race_max_robots: usize,
     /// Threads the optimiser iterates on, the calling one among them (teams
     /// of [`flowopt_planner::am::CREW_MIN_ROBOTS`] robots or more, one per
-    /// that many robots at most; the same plans for every count); 0: the
-    /// machine's cores less one, left for the daemon's worker
-    /// ([`Self::threads`]).
+    /// block of 16 robots at most; the same plans for every count); 0: the
+    /// machine's cores less one, left for the daemon's worker; never more
+    /// than the machine's cores ([`Self::threads`]).
     pub threads: usize,
 }
 
@@ -91,17 +91,32 @@ impl PlannerSettings {
     /// 2-core machine two threads for the 64-robot demo's replans took
     /// `Ok` beside a busy process from 75% to 0% of answers: a crew that
     /// spins between steps must not share its cores (docs/BENCHMARKS.md,
-    /// "Threads").
+    /// "Threads"). A count above the machine's cores is cut to them: a
+    /// crew's step waits for its slowest member, and members that wait for
+    /// a core make every step wait for the scheduler (64 robots on this
+    /// 2-core machine, 4 threads: 3.9 s a plan against 28 ms on one).
     pub fn threads(&self) -> usize {
-        if self.threads > 0 {
-            return self.threads;
+        let cores = std::thread::available_parallelism().map_or(1, |c| c.get());
+        match self.threads {
+            0 => cores.saturating_sub(1).max(1),
+            asked => asked.min(cores),
         }
-        std::thread::available_parallelism().map_or(1, |c| c.get().saturating_sub(1)).max(1)
     }
 
     /// The optimiser's settings, on [`Self::threads`] threads.
     pub fn optimiser(&self) -> AmSettings {
         AmSettings { threads: self.threads(), ..self.optimiser }
+    }
+
+    /// The learned pipeline's settings, its threads (1 without obstacles,
+    /// 2 with, [`PipelineSettings::threads_for`]) at most [`Self::threads`].
+    pub fn learned(&self) -> PipelineSettings {
+        let cap = self.threads();
+        PipelineSettings {
+            threads: self.learned.threads.min(cap),
+            obstacle_threads: self.learned.obstacle_threads.min(cap),
+            ..self.learned.clone()
+        }
     }
 
     /// The defaults with `table`'s keys set (nested tables set nested keys).
@@ -248,6 +263,22 @@ mod tests {
             assert!(s.set(bad).is_err(), "{bad}");
             assert_eq!(s, before, "a refused assignment changes nothing");
         }
+    }
+
+    #[test]
+    fn threads_are_the_cores_less_one_by_default_and_never_more_than_the_cores() {
+        let cores = std::thread::available_parallelism().map_or(1, |c| c.get());
+        let with = |threads| PlannerSettings { threads, ..PlannerSettings::default() }.threads();
+        assert_eq!(with(0), cores.saturating_sub(1).max(1));
+        assert_eq!(with(1), 1);
+        assert_eq!(with(cores + 7), cores, "cut to the machine's cores");
+        assert_eq!(with(cores), cores);
+        // The learned pipeline's threads are capped by them too.
+        let one = PlannerSettings { threads: 1, ..PlannerSettings::default() }.learned();
+        assert_eq!((one.threads_for(0), one.threads_for(3)), (1, 1));
+        let defaults = PipelineSettings::default();
+        assert_eq!((defaults.threads_for(0), defaults.threads_for(3)), (1, 2));
+        assert!(PlannerSettings::from_table(toml::from_str("[learned]\nobstacle_threads = 3").unwrap()).is_err());
     }
 
     #[test]

@@ -25,6 +25,8 @@ use crate::problem::{Problem, Team};
 #[derive(Debug, Clone)]
 pub struct Optimiser {
     settings: AmSettings,
+    /// Its name in a race ([`Planner::name`]).
+    name: &'static str,
     /// Engines per team, per obstacle count.
     sets: Vec<EngineSet>,
 }
@@ -32,14 +34,19 @@ pub struct Optimiser {
 impl Optimiser {
     /// An optimiser with `settings` (defaults: [`AmSettings::optimiser`]).
     pub fn new(settings: AmSettings) -> Self {
-        Self { settings, sets: Vec::new() }
+        Self { settings, name: "optimiser", sets: Vec::new() }
+    }
+
+    /// The same, named `name` in a race (a variant beside the optimiser).
+    pub fn named(self, name: &'static str) -> Self {
+        Self { name, ..self }
     }
 
     /// With the engines for `team` and every obstacle count up to
     /// `max_obstacles` built now.
     pub fn preloaded(settings: AmSettings, team: &Team, max_obstacles: usize) -> Result<Self, PlanError> {
         let set = EngineSet::preloaded(team, Objective::smoothness(), settings, max_obstacles)?;
-        Ok(Self { settings, sets: vec![set] })
+        Ok(Self { settings, name: "optimiser", sets: vec![set] })
     }
 
     /// The settings.
@@ -54,7 +61,7 @@ impl Optimiser {
 
 impl Planner for Optimiser {
     fn name(&self) -> &'static str {
-        "optimiser"
+        self.name
     }
 
     fn ready(&mut self, team: &Team, obstacles: usize) -> Result<(), PlanError> {

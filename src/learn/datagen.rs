@@ -134,8 +134,7 @@ fn solver_for(solver: &DataSolver, dim: flowopt_planner::problem::Dim) -> Result
             settings.learned.flow = WeightsRef::File(flow.checked()?.to_path_buf());
             settings.learned.init =
                 init.as_ref().map(|i| i.checked().map(|p| WeightsRef::File(p.to_path_buf()))).transpose()?;
-            settings.learned.threads = 1;
-            settings.learned.obstacle_threads = 1;
+            settings.threads = 1;
             Box::new(learned(&settings, Method::Flowopt, dim)?)
         }
     })

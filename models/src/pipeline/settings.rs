@@ -60,9 +60,14 @@ pub struct PipelineSettings {
     /// verifies the 16-robot obstacle field at all.
     pub init_without_obstacles: bool,
     /// Threads sampling (the candidates split between them) and refining
-    /// candidates in parallel, for problems without obstacles.
+    /// candidates in parallel, for problems without obstacles: 1 (two cores
+    /// slow each other on batches this small). Not a key: the planner
+    /// settings' `threads` caps it (`PlannerSettings::learned`).
+    #[serde(skip)]
     pub threads: usize,
-    /// The same for problems with obstacles (static or moving).
+    /// The same for problems with obstacles (static or moving): 2. Not a
+    /// key either.
+    #[serde(skip)]
     pub obstacle_threads: usize,
     /// Scale of the initial noise (1 samples the learned distribution;
     /// lower values trade diversity for samples nearer its mode).

@@ -6,7 +6,7 @@ use std::time::Instant;
 
 use super::engine::{AmOutcome, AmState, Engine, EngineError, Residuals};
 use super::prepare::Prepared;
-use super::projection::{Projection, SampleGrid};
+use super::projection::{Projection, ROBOT_BLOCK, SampleGrid};
 use super::settings::Stop;
 use crate::crew::Crew;
 use crate::problem::Problem;
@@ -21,9 +21,8 @@ const DEADLINE_CHECK_EVERY: usize = 4;
 pub const ATTEMPT_ITERATIONS_PER_ROBOT: usize = 25;
 
 /// Teams at least this large iterate on [`super::AmSettings::threads`]
-/// threads, at most one per this many robots; smaller ones alone (starting
-/// the threads costs more than they save). Two robot blocks of the
-/// projection.
+/// threads, at most one per robot block of the projection (16 robots);
+/// smaller ones alone (starting the threads costs more than they save).
 pub const CREW_MIN_ROBOTS: usize = 32;
 
 /// When a run must stop before its own stopping rules: a deadline
@@ -163,9 +162,10 @@ impl Engine {
     }
 
     fn run_capped(&self, prepared: &Prepared, state: AmState, cap: usize, budget: &Budget<'_>) -> AmOutcome {
-        // One thread per CREW_MIN_ROBOTS robots at most: a step's blocks
-        // would not keep more busy.
-        let threads = self.settings.threads.min(self.team.robots / CREW_MIN_ROBOTS).max(1);
+        // One thread per robot block at most: a step's blocks would not keep
+        // more busy.
+        let n = self.team.robots;
+        let threads = if n < CREW_MIN_ROBOTS { 1 } else { self.settings.threads.min(n.div_ceil(ROBOT_BLOCK)).max(1) };
         Crew::with(threads, |crew| self.iterate(prepared, state, cap, budget, crew))
     }
 

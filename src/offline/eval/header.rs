@@ -57,7 +57,7 @@ pub(super) struct HeaderFacts<'a> {
 
 pub(super) fn header(f: &HeaderFacts) -> String {
     let optimiser = f.settings.optimiser();
-    let pipeline = &f.settings.learned;
+    let pipeline = f.settings.learned();
     let settle = match pipeline.settle {
         Settle::FirstVerified => {
             "taking the candidates in rank order and returning the best-ranked one that verifies (the candidates \

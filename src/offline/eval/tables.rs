@@ -166,7 +166,8 @@ pub(super) fn throughput(settings: &PlannerSettings, quick: bool, seed: u64, com
         threads: 2,
         ..settings.learned
     };
-    let threads = settings.learned.threads_for(0);
+    settings.threads = settings.threads.max(2);
+    let threads = settings.learned().threads_for(0);
     let mut planner = Harness::new(settings, true);
     let team = Team::default_for(Dim::Two, 16);
     let sampling = format!("sampling {} candidates ms", PROBLEMS * CANDIDATES);

@@ -187,7 +187,7 @@ mod tests {
         use crate::problem::Obstacle;
         use crate::scenario::RandomScenario;
         // Kept broad-phase sets from 128 robots, all pairs below 24; one
-        // thread per 32 robots at most.
+        // thread per robot block at most.
         for (dim, robots, obstacles) in [(Dim::Two, 130, 2), (Dim::Two, 70, 3), (Dim::Three, 64, 2), (Dim::Two, 20, 0)]
         {
             let team = Team {
