@@ -33,10 +33,10 @@
 //!   newest obstacles; a verified result is the new plan.
 //! - **A held plan that serves is kept.** When the warm start does not
 //!   verify in time but the held plan leads to the same goals and passes
-//!   the check, it is re-issued at once and no cold plan runs: a new plan
-//!   adopted every few snapshots makes the robots jump by what two plans
-//!   differ over an answer's latency (128 robots, 76 ms answers: tracking
-//!   errors up to 60 mm, then `NotFollowing` and no plan).
+//!   the check, it is re-issued at once and no cold plan runs (none is
+//!   needed, and a late one makes the robots jump by what two plans differ
+//!   over its latency); 128 robots: the answers' p99 83-87 ms against
+//!   117 ms, lost plans unchanged (docs/BENCHMARKS.md, "Threads").
 //! - **Cold plan** otherwise (new goals, robots off the plan, an obstacle
 //!   on it): the cold planner's methods race on their own threads
 //!   ([`crate::cold`]) within the same deadline. One that misses it keeps
@@ -238,10 +238,9 @@ impl TeamPlanner {
             }
         }
         // A held plan to these goals that may still be followed serves: no
-        // cold plan runs for them and the answer does not wait for one. A
-        // new plan adopted every few snapshots makes the robots jump by
-        // what two plans differ over an answer's latency (128 robots: up
-        // to 60 mm, then `NotFollowing` and no plan).
+        // cold plan runs for them and the answer does not wait for one (a
+        // late one would make the robots jump by what two plans differ
+        // over its latency).
         let serves = matches!(checked, Some(Ok(())))
             && self.held.as_ref().is_some_and(|h| h.kind == Kind::Goals && same_goals(&h.goals, &world.problem));
         if serves {
