@@ -372,8 +372,7 @@ mod tests {
             let team = cfg.team().unwrap();
             assert_eq!(team.robots, robots, "{file}");
             // The farthest trip, the box's diagonal, within max_speed.
-            let w = &team.workspace;
-            let diagonal = ((w.max[0] - w.min[0]).powi(2) + (w.max[1] - w.min[1]).powi(2)).sqrt();
+            let diagonal = team.workspace_diagonal();
             assert!(team.horizon * cfg.max_speed >= diagonal, "{file}: {} s for {diagonal} m", team.horizon);
             // The degree and K the optimiser gives that box.
             let resolved = team.clone().resolved_for_workspace();

@@ -211,13 +211,13 @@ impl TeamPlanner {
         let deviation = self.held.as_ref().map(|h| h.deviation(&world.problem, origin_ns));
         let mut why = Why::DeadlineMissed;
 
+        // The held plan leads to these goals.
+        let to_goals =
+            self.held.as_ref().is_some_and(|h| h.kind == Kind::Goals && same_goals(&h.goals, &world.problem));
         // Warm start from the held plan, if the robots are on it (against
         // the obstacles as they are now).
-        let warm_from = self.held.as_ref().filter(|h| {
-            h.kind == Kind::Goals
-                && same_goals(&h.goals, &world.problem)
-                && deviation.is_some_and(|d| d <= self.rules.warm_tolerance)
-        });
+        let warm_from =
+            self.held.as_ref().filter(|_| to_goals && deviation.is_some_and(|d| d <= self.rules.warm_tolerance));
         // New plans start where the held plan has the robots while they
         // follow it, else from the measurement.
         let anchored = match (&self.held, &checked) {
@@ -241,9 +241,7 @@ impl TeamPlanner {
         // cold plan runs for them and the answer does not wait for one (a
         // late one would make the robots jump by what two plans differ
         // over its latency).
-        let serves = matches!(checked, Some(Ok(())))
-            && self.held.as_ref().is_some_and(|h| h.kind == Kind::Goals && same_goals(&h.goals, &world.problem));
-        if serves {
+        if to_goals && matches!(checked, Some(Ok(()))) {
             if self.pending.take().is_some() {
                 self.cold.cancel();
             }

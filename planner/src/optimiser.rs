@@ -46,7 +46,7 @@ impl Optimiser {
     /// `max_obstacles` built now.
     pub fn preloaded(settings: AmSettings, team: &Team, max_obstacles: usize) -> Result<Self, PlanError> {
         let set = EngineSet::preloaded(team, Objective::smoothness(), settings, max_obstacles)?;
-        Ok(Self { settings, name: "optimiser", sets: vec![set] })
+        Ok(Self { sets: vec![set], ..Self::new(settings) })
     }
 
     /// The settings.

@@ -229,8 +229,7 @@ impl Team {
     /// (11 / 54 and 16 / 76) a few 256-robot crowds needed thousands of
     /// iterations more (docs/BENCHMARKS.md).
     pub fn resolved_for_workspace(self) -> Self {
-        let axes = self.dim.axes();
-        let diagonal = (0..axes).map(|a| (self.workspace.max[a] - self.workspace.min[a]).powi(2)).sum::<f64>().sqrt();
+        let diagonal = self.workspace_diagonal();
         let allowed = self.samples as f64 * Self::MOVE_PER_SAMPLE * self.separation().0;
         let factor = diagonal / allowed;
         if factor.is_nan() || factor <= 1.0 {
@@ -238,6 +237,12 @@ impl Team {
         }
         let grow = |x: usize| (x as f64 * factor).ceil() as usize;
         Self { degree: grow(self.degree), samples: grow(self.samples), ..self }
+    }
+
+    /// The workspace's diagonal (m) in the team's dimension: the farthest
+    /// trip within it.
+    pub fn workspace_diagonal(&self) -> f64 {
+        (0..self.dim.axes()).map(|a| (self.workspace.max[a] - self.workspace.min[a]).powi(2)).sum::<f64>().sqrt()
     }
 
     /// Centre-to-centre separations `(a, b)` (horizontal, vertical): twice
