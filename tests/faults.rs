@@ -9,7 +9,7 @@ mod common;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-use common::{ANSWER, Controller, Setup, exe, problem};
+use common::{ANSWER, Controller, STALE_AFTER_MS, Setup, exe, problem};
 use flowopt_client::clock::monotonic_ns;
 use flowopt_client::{Endpoint, JointTrajectory, PlanStatus, PortError, Reason, StateSnapshot};
 use flowopt_planner::metrics::DENSE_FACTOR;
@@ -40,7 +40,7 @@ fn rejected_and_held(test: &str, edit: impl Fn(&mut StateSnapshot), reason: Reas
     let mut c = setup.controller(&format!("faults-{test}"));
     let p = problem(4);
     let first = c.request(&p, |_| {});
-    assert_eq!(first.status(), Ok(PlanStatus::Ok));
+    assert_eq!((first.status(), first.reason()), (Ok(PlanStatus::Ok), Ok(Reason::None)));
     let (sequence, origin) = (first.plan_sequence, first.plan_origin_ns);
     drop(first);
     let bad = c.request(&p, edit);
@@ -50,7 +50,11 @@ fn rejected_and_held(test: &str, edit: impl Fn(&mut StateSnapshot), reason: Reas
     let followed = c.plans.to_follow().unwrap();
     assert_eq!((followed.plan_sequence, followed.origin_ns), (sequence, origin));
     let next = c.request(&p, |_| {});
-    assert_eq!(next.status(), Ok(PlanStatus::Ok), "the next valid snapshot is planned");
+    assert_eq!(
+        (next.status(), next.reason()),
+        (Ok(PlanStatus::Ok), Ok(Reason::None)),
+        "the next valid snapshot is planned"
+    );
 }
 
 #[test]
@@ -344,14 +348,14 @@ fn rejected_snapshots_reissue_the_held_plan_only_while_the_newest_accepted_one_i
     assert_eq!(first.status(), Ok(PlanStatus::Ok));
     let accepted_ns = first.state_timestamp_ns;
     drop(first);
-    // Snapshots with a zero clock for 0.6 s (stale_after_ms is 300).
+    // Snapshots with a zero clock for twice stale_after_ms.
     let (mut held, mut none) = (0, 0);
     let since = Instant::now();
-    while since.elapsed() < Duration::from_millis(600) {
+    while since.elapsed() < Duration::from_secs_f64(2e-3 * STALE_AFTER_MS) {
         let answer = c.request(&p, |s| s.timestamp_ns = 0);
         assert_eq!(answer.reason(), Ok(Reason::Clock));
         let age_ms = (answer.received_ns - accepted_ns) as f64 * 1e-6;
-        let expected = if age_ms <= 300.0 { PlanStatus::Held } else { PlanStatus::NoPlan };
+        let expected = if age_ms <= STALE_AFTER_MS { PlanStatus::Held } else { PlanStatus::NoPlan };
         assert_eq!(answer.status(), Ok(expected), "{age_ms:.1} ms after the accepted snapshot");
         if expected == PlanStatus::Held {
             held += 1

@@ -20,6 +20,14 @@ use flowopt_planner::scenario::RandomScenario;
 pub const ANSWER: Duration = Duration::from_secs(30);
 /// Robots of the tests' team.
 pub const ROBOTS: usize = 4;
+/// The tests' team's `stale_after_ms`: wider than a lab's (the shipped
+/// configs' 300 ms, a few control periods), since a test's snapshots are
+/// minutes of wall time apart on a loaded 2-core CI machine running a
+/// daemon per test: at 300 ms a daemon thread not scheduled for that long
+/// rightly rejected a snapshot by the clock check, or dropped the held
+/// plan as stale before the test's next snapshot, and tests expecting a
+/// plan failed.
+pub const STALE_AFTER_MS: f64 = 1500.0;
 
 pub fn exe() -> &'static str {
     env!("CARGO_BIN_EXE_flowopt")
@@ -43,7 +51,7 @@ impl Setup {
         let text = format!(
             "[[team]]\nname = \"t\"\ndim = 2\nrobots = {ROBOTS}\nrobot = {{ radius = 0.1 }}\n\
              workspace = {{ min = [-1.0, -1.0], max = [1.0, 1.0] }}\nmax_obstacles = 1\n\
-             deadline_ms = {deadline_ms:.1}\nstale_after_ms = 300.0\n"
+             deadline_ms = {deadline_ms:.1}\nstale_after_ms = {STALE_AFTER_MS:.1}\n"
         );
         std::fs::write(&config, text).unwrap();
         Self { prefix, config }
@@ -163,6 +171,14 @@ impl Controller {
             let round = Instant::now();
             while heard || round.elapsed() < Duration::from_millis(500) {
                 if let Some(plan) = self.plans.wait(Duration::from_millis(100)).unwrap() {
+                    // Shown when a test fails.
+                    eprintln!(
+                        "{:?} for {:?} answering {} (waiting for {sequence}) after {:?}",
+                        plan.status(),
+                        plan.reason(),
+                        plan.answers_sequence,
+                        since.elapsed()
+                    );
                     if plan.answers_sequence == sequence {
                         return plan;
                     }
