@@ -252,9 +252,10 @@ impl Lab {
         None
     }
 
-    /// A walker entering `ENTRY_MARGIN` outside a random side of the
-    /// workspace at `t`, walking across it through a random point inside
-    /// at walking speed, gone once it is as far outside the far side.
+    /// A walker crossing the workspace at walking speed through a random
+    /// point inside it, from `t`: it appears where its edge is
+    /// `ENTRY_MARGIN` from the box (the mocap volume sees people before
+    /// they step in) and is gone once it is as far out on the far side.
     fn walker(&mut self, team: &Team, t: f64) -> SimObstacle {
         let (lo, hi) = (team.workspace.min, team.workspace.max);
         let centre = (lo + hi) / 2.0;
@@ -266,16 +267,39 @@ impl Lab {
         );
         let heading = Vector3::new(self.rng.random_range(-1.0..1.0), self.rng.random_range(-1.0..1.0), 0.0);
         let heading = if heading.norm() > 1e-3 { heading.normalize() } else { Vector3::x() };
-        // From the entry point outside the box to the exit on the other side.
-        let reach = half.x.hypot(half.y) * 2.0 + 2.0 * (RADIUS + ENTRY_MARGIN);
-        let back = reach / 2.0;
+        let out = RADIUS + ENTRY_MARGIN;
+        let back = distance_out(through, -heading, team, out);
+        let ahead = distance_out(through, heading, team, out);
         SimObstacle {
             position: through - heading * back,
             velocity: heading * WALKING_SPEED,
             from_s: t,
-            until_s: t + reach / WALKING_SPEED,
+            until_s: t + (back + ahead) / WALKING_SPEED,
         }
     }
+}
+
+/// How far from `from` (inside `team`'s box) along the unit `direction` a
+/// point first lies `out` (m) from the box, in the plane.
+fn distance_out(from: Vector3<f64>, direction: Vector3<f64>, team: &Team, out: f64) -> f64 {
+    // The distance to a convex set grows along a ray leaving it: bisect.
+    let (mut inside, mut outside) = (0.0, (team.workspace.max - team.workspace.min).xy().norm() + out);
+    for _ in 0..60 {
+        let mid = 0.5 * (inside + outside);
+        if planar_distance_to_box(from + direction * mid, team) >= out {
+            outside = mid;
+        } else {
+            inside = mid;
+        }
+    }
+    outside
+}
+
+/// The planar distance (m) from `p` to `team`'s box (0 inside).
+fn planar_distance_to_box(p: Vector3<f64>, team: &Team) -> f64 {
+    let (lo, hi) = (team.workspace.min, team.workspace.max);
+    let gap = |ax: usize| (lo[ax] - p[ax]).max(p[ax] - hi[ax]).max(0.0);
+    gap(0).hypot(gap(1))
 }
 
 #[cfg(test)]
@@ -338,11 +362,24 @@ mod tests {
                 assert!(g[ax] > team.workspace.min[ax] && g[ax] < team.workspace.max[ax]);
             }
         }
-        // The walker enters from outside the box and crosses it.
+    }
+
+    #[test]
+    fn walkers_appear_and_leave_their_margin_outside_the_box_and_cross_it() {
+        let team = Team::default_for(Dim::Two, 16);
+        let mut lab = Lab::new(LabDay { walkers: 1, ..LabArgs::default().day() }, team.robots, 5);
         let inside =
             |p: Vector3<f64>| (0..2).all(|ax| p[ax] >= team.workspace.min[ax] && p[ax] <= team.workspace.max[ax]);
-        assert!(!inside(walker.at(0.0).position), "enters from outside");
-        assert!(!inside(walker.at(walker.until_s - 1e-6).position), "leaves");
-        assert!(inside(walker.at(walker.until_s / 2.0).position), "crosses");
+        for _ in 0..200 {
+            let walker = lab.walker(&team, 1.0);
+            let (first, last) = (walker.at(walker.from_s).position, walker.at(walker.until_s).position);
+            for (p, what) in [(first, "appears"), (last, "leaves")] {
+                let d = planar_distance_to_box(p, &team);
+                assert!((d - RADIUS - ENTRY_MARGIN).abs() < 1e-9, "{what} {d:.3} m from the box");
+            }
+            let along = |k: usize| walker.at(walker.from_s + (walker.until_s - walker.from_s) * k as f64 / 100.0);
+            assert!((0..=100).any(|k| inside(along(k).position)), "crosses");
+            assert!((walker.velocity.norm() - WALKING_SPEED).abs() < 1e-12);
+        }
     }
 }
