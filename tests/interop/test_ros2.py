@@ -23,6 +23,10 @@ from ros2_types import (  # noqa: E402
     TwistWithCovariance, Vector3)
 
 ROBOTS = 16  # config/default.toml
+# How far a verified plan's centres may leave the 2 m box
+# (`flowopt_planner::problem::FEASIBILITY_TOLERANCE` of the 0.2 m separation); a plan
+# starts at the measured state, which the daemon accepts that far out.
+BOX_TOLERANCE = 0.01 * 0.2
 RELIABLE = Qos(Policy.Reliability.Reliable(0), Policy.Durability.Volatile, Policy.History.KeepLast(10))
 # A viewer's subscription: best effort, the newest only. (A slow reliable
 # reader holds the bridge's send window full, and its publications then
@@ -74,7 +78,8 @@ def test_every_robot_path_reaches_a_cyclone_participant_while_a_simulated_team_f
             stamps = [p.header.stamp.sec * 10**9 + p.header.stamp.nanosec for p in path.poses]
             assert stamps == sorted(stamps) and len(stamps) == 50
             spans.append(stamps[-1] - stamps[0])
-            assert all(abs(p.pose.position.x) <= 1.0 + 1e-6 and abs(p.pose.position.y) <= 1.0 + 1e-6 for p in path.poses)
+            excess = max(max(abs(p.pose.position.x), abs(p.pose.position.y)) - 1.0 for p in path.poses)
+            assert excess <= BOX_TOLERANCE, f"robot {i}: {excess * 1e3:.2f} mm outside the box"
         # Plans over the 5 s horizon (stopping plans are shorter).
         assert max(spans) == pytest.approx(5e9, abs=1e6) and min(spans) > 0
     assert statuses and {s["status"] for s in statuses} <= {"Ok", "Held", "Stopping", "NoPlan", "Rejected"}
