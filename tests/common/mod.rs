@@ -21,12 +21,12 @@ pub const ANSWER: Duration = Duration::from_secs(30);
 /// Robots of the tests' team.
 pub const ROBOTS: usize = 4;
 /// The tests' team's `stale_after_ms`: wider than a lab's (the shipped
-/// configs' 300 ms, a few control periods), since a test's snapshots are
-/// minutes of wall time apart on a loaded 2-core CI machine running a
-/// daemon per test: at 300 ms a daemon thread not scheduled for that long
-/// rightly rejected a snapshot by the clock check, or dropped the held
-/// plan as stale before the test's next snapshot, and tests expecting a
-/// plan failed.
+/// configs' 300 ms, a few control periods), since on a loaded 2-core CI
+/// machine running a daemon per test, a test's snapshots and the daemon's
+/// threads can wait longer than that: at 300 ms a daemon thread not
+/// scheduled for that long rightly rejected a snapshot by the clock check,
+/// or dropped the held plan as stale before the test's next snapshot, and
+/// tests expecting a plan failed.
 pub const STALE_AFTER_MS: f64 = 1500.0;
 
 pub fn exe() -> &'static str {

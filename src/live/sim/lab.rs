@@ -368,8 +368,6 @@ mod tests {
     fn walkers_appear_and_leave_their_margin_outside_the_box_and_cross_it() {
         let team = Team::default_for(Dim::Two, 16);
         let mut lab = Lab::new(LabDay { walkers: 1, ..LabArgs::default().day() }, team.robots, 5);
-        let inside =
-            |p: Vector3<f64>| (0..2).all(|ax| p[ax] >= team.workspace.min[ax] && p[ax] <= team.workspace.max[ax]);
         for _ in 0..200 {
             let walker = lab.walker(&team, 1.0);
             let (first, last) = (walker.at(walker.from_s).position, walker.at(walker.until_s).position);
@@ -378,7 +376,7 @@ mod tests {
                 assert!((d - RADIUS - ENTRY_MARGIN).abs() < 1e-9, "{what} {d:.3} m from the box");
             }
             let along = |k: usize| walker.at(walker.from_s + (walker.until_s - walker.from_s) * k as f64 / 100.0);
-            assert!((0..=100).any(|k| inside(along(k).position)), "crosses");
+            assert!((0..=100).any(|k| team.workspace.contains(team.dim, &along(k).position, 0.0)), "crosses");
             assert!((walker.velocity.norm() - WALKING_SPEED).abs() < 1e-12);
         }
     }
