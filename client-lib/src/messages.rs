@@ -210,13 +210,18 @@ pub enum Reason {
     /// The held plan no longer clears the newest snapshot's obstacles (one
     /// appeared, moved or changed course onto it).
     WorldChanged = 23,
+    /// The plan was made from a start in contact (a robot touching another
+    /// or an obstacle, or outside the box; `reason_index`: the robot, the
+    /// first of a pair) and moves it out within the team's
+    /// `start_recovery_s` (docs/MESSAGES.md, "Starts in contact").
+    Recovering = 24,
 }
 
 impl Reason {
     /// The reason with wire value `value`.
     pub fn from_wire(value: u32) -> Result<Self, MessageError> {
         use Reason::*;
-        const ALL: [Reason; 24] = [
+        const ALL: [Reason; 25] = [
             None,
             Version,
             Team,
@@ -241,6 +246,7 @@ impl Reason {
             NotFollowing,
             Limits,
             WorldChanged,
+            Recovering,
         ];
         ALL.get(value as usize).copied().ok_or(MessageError::Field("reason"))
     }
@@ -653,15 +659,16 @@ mod tests {
         for value in 0..4 {
             assert_eq!(PlanStatus::from_wire(value).map(|s| s as u32), Ok(value));
         }
-        for value in 0..23 {
+        for value in 0..25 {
             assert_eq!(Reason::from_wire(value).map(|r| r as u32), Ok(value));
         }
         assert_eq!(PlanStatus::from_wire(4), Err(MessageError::Field("status")));
         assert_eq!(Reason::from_wire(23), Ok(Reason::WorldChanged));
-        assert_eq!(Reason::from_wire(24), Err(MessageError::Field("reason")));
+        assert_eq!(Reason::from_wire(24), Ok(Reason::Recovering));
+        assert_eq!(Reason::from_wire(25), Err(MessageError::Field("reason")));
         assert!(Reason::NonFinite.is_rejection() && Reason::Clock.is_rejection() && Reason::Implausible.is_rejection());
         assert!(!Reason::DeadlineMissed.is_rejection() && !Reason::StaleState.is_rejection());
-        assert!(!Reason::WorldChanged.is_rejection());
+        assert!(!Reason::WorldChanged.is_rejection() && !Reason::Recovering.is_rejection());
         assert!(PlanStatus::Held.followable() && PlanStatus::Stopping.followable() && !PlanStatus::NoPlan.followable());
     }
 

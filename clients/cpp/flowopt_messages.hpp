@@ -71,6 +71,7 @@ enum class Reason : std::uint32_t {
     NotFollowing = 21,
     Limits = 22,
     WorldChanged = 23,
+    Recovering = 24,
 };
 
 /// Whether `reason` rejects the answered snapshot: its task was not planned

@@ -163,6 +163,15 @@ pub struct TeamConfig {
     /// always ([`Team::obstacle_prediction`]).
     #[serde(default = "default_obstacle_prediction_s")]
     pub obstacle_prediction_s: f64,
+    /// Seconds a robot measured touching another robot or an obstacle, or
+    /// outside the box (by at most half a separation), has to clear it in
+    /// the plans made from that snapshot: the team goes on being planned,
+    /// the contact held to what the start allows until then
+    /// ([`Team::start_recovery`]). 0: such snapshots' tasks are rejected
+    /// (`StartsOverlap`, `StartInObstacle`, `StartOutsideWorkspace`) and
+    /// the team stops.
+    #[serde(default = "default_start_recovery_s")]
+    pub start_recovery_s: f64,
     /// How cold plans are made (`[team.planner]`): the method (`auto` by
     /// default: the learned pipeline races the optimiser where the policy
     /// lets it) and every planner's knobs, defaults declared by the
@@ -208,6 +217,11 @@ fn default_cold_budget_ms() -> f64 {
 /// goal the walker will cross is still reachable after it passed.
 fn default_obstacle_prediction_s() -> f64 {
     3.5
+}
+
+/// 1 s: the stopping horizon of the default speed and acceleration limits.
+fn default_start_recovery_s() -> f64 {
+    1.0
 }
 
 /// How much shorter (s) than a plan's obstacle prediction the check of a
@@ -281,7 +295,14 @@ impl TeamConfig {
                 self.stop_horizon()
             )));
         }
-        Ok(Team { obstacle_prediction: Some(self.obstacle_prediction_s), ..team })
+        if !(self.start_recovery_s.is_finite() && (0.0..=self.horizon).contains(&self.start_recovery_s)) {
+            return Err(bad("start_recovery_s must be 0 or positive, at most the horizon".into()));
+        }
+        Ok(Team {
+            obstacle_prediction: Some(self.obstacle_prediction_s),
+            start_recovery: (self.start_recovery_s > 0.0).then_some(self.start_recovery_s),
+            ..team
+        })
     }
 }
 
@@ -400,6 +421,10 @@ mod tests {
         assert_eq!((t.max_obstacle_speed, t.obstacle_prediction_s), (3.0, 3.5));
         assert_eq!(t.planner, PlannerSettings::default());
         assert_eq!(t.team().unwrap().obstacle_prediction, Some(3.5));
+        assert_eq!((t.start_recovery_s, t.team().unwrap().start_recovery), (1.0, Some(1.0)));
+        let off: DaemonConfig =
+            toml::from_str(&MINIMAL.replace("robots = 4", "robots = 4\nstart_recovery_s = 0.0")).unwrap();
+        assert_eq!(off.teams[0].team().unwrap().start_recovery, None);
     }
 
     #[test]
@@ -411,6 +436,8 @@ mod tests {
         assert!(bad("robots = 4", "robots = 257").contains("at most 256 robots"));
         assert!(bad("robots = 4", "robots = 4\nmax_speed = -1.0").contains("max_speed must be positive"));
         assert!(bad("robots = 4", "robots = 4\nimplausible_factor = 0.5").contains("implausible_factor"));
+        assert!(bad("robots = 4", "robots = 4\nstart_recovery_s = -1.0").contains("start_recovery_s"));
+        assert!(bad("robots = 4", "robots = 4\nstart_recovery_s = 6.0").contains("start_recovery_s"));
         assert!(bad("radius = 0.1", "radius = -0.1").contains("team \"a\""));
         assert!(bad("min = [-1.0, -1.0]", "min = [-1.0]").contains("workspace.min"));
         assert!(bad("name = \"a\"", "name = \"a/b\"").contains("name"));

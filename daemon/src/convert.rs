@@ -76,6 +76,11 @@ pub struct Measured {
     /// workspace, overlapping starts or goals, a start or goal in an
     /// obstacle. The robots and obstacles are still what was measured.
     pub task: Result<(), Rejection>,
+    /// The robot of the first start violation the plans recover from (a
+    /// robot touching another or an obstacle, or outside the box, within
+    /// what the team recovers from: [`flowopt_planner::recovery`]),
+    /// reported with the answer as [`Reason::Recovering`].
+    pub recovering: Option<usize>,
 }
 
 /// Reads a snapshot whose header passed [`check_header`]: the values
@@ -128,7 +133,11 @@ pub fn measured(snapshot: &StateSnapshot, team: &Team, plausible: Plausible) -> 
     if let Some(m) = problem.obstacles.iter().position(|o| o.velocity.norm() > plausible.obstacle_speed) {
         return Err(Rejection::at(Reason::Implausible, MAX_ROBOTS + m));
     }
-    Ok(Measured { problem, task })
+    let recovering = match task {
+        Ok(()) => problem.start_violations().first().map(|v| v.robot),
+        Err(_) => None,
+    };
+    Ok(Measured { problem, task, recovering })
 }
 
 /// Whether a validation error is about the task (where the robots are and
@@ -255,6 +264,26 @@ mod tests {
         // A bad value is not.
         s.robot[0].position[0] = f64::NAN;
         assert_eq!(measured(&s, &team, PLAUSIBLE).unwrap_err().reason, Reason::NonFinite);
+    }
+
+    #[test]
+    fn a_start_in_shallow_contact_is_planned_in_a_team_that_recovers_and_reported() {
+        let (team, mut s) = valid();
+        let recovering = Team { start_recovery: Some(1.0), ..team.clone() };
+        // Robot 3 measured 5 mm outside the box's left side.
+        s.robot[3].position = [-1.005, 0.0, 0.0];
+        let m = measured(&s, &recovering, PLAUSIBLE).unwrap();
+        assert_eq!((m.task, m.recovering), (Ok(()), Some(3)));
+        let strict = measured(&s, &team, PLAUSIBLE).unwrap();
+        assert_eq!((strict.task, strict.recovering), (Err(Rejection::at(Reason::StartOutsideWorkspace, 3)), None));
+        // Deeper than half a separation: rejected in either team.
+        s.robot[3].position = [-1.2, 0.0, 0.0];
+        assert_eq!(
+            measured(&s, &recovering, PLAUSIBLE).unwrap().task,
+            Err(Rejection::at(Reason::StartOutsideWorkspace, 3))
+        );
+        let (_, clear) = valid();
+        assert_eq!(measured(&clear, &recovering, PLAUSIBLE).unwrap().recovering, None);
     }
 
     #[test]

@@ -115,8 +115,9 @@ pub(crate) fn run(
 /// What became of one snapshot.
 #[derive(Debug)]
 enum Outcome {
-    /// Planned: the planner's answer.
-    Planned(Answer),
+    /// Planned: the planner's answer, and the robot its plans move out of
+    /// a contact ([`crate::convert::Measured::recovering`]).
+    Planned(Answer, Option<usize>),
     /// A measurement whose task was rejected: the planner's answer in its
     /// world, reported with the rejection.
     Task(Answer, Rejection),
@@ -152,12 +153,15 @@ fn respond(
     admission.accept(job.publisher, s.sequence);
     let deadline = job.received + planner.deadline();
     let outcome = match measured.task {
-        Ok(()) => Outcome::Planned(planner.answer(measured.problem, s.timestamp_ns, s.sequence, deadline)),
+        Ok(()) => Outcome::Planned(
+            planner.answer(measured.problem, s.timestamp_ns, s.sequence, deadline),
+            measured.recovering,
+        ),
         Err(rejection) => {
             Outcome::Task(planner.observe(measured.problem, s.timestamp_ns, s.sequence, deadline), rejection)
         }
     };
-    if let Outcome::Planned(answer) | Outcome::Task(answer, _) = &outcome {
+    if let Outcome::Planned(answer, _) | Outcome::Task(answer, _) = &outcome {
         stage_timings(&mut timings, &answer.stages);
     }
     (outcome, timings)
@@ -178,9 +182,14 @@ fn answer(
     let (sequence, timestamp) = (s.sequence, s.timestamp_ns);
     let (outcome, timings) = respond(config, planner, admission, job);
     let mut reply = match &outcome {
-        Outcome::Planned(answer) => {
+        Outcome::Planned(answer, recovering) => {
             debug!(sequence, follow = ?answer.follow, why = ?answer.why, iterations = answer.iterations, "answered");
-            Reply::of(answer, planner.held(), sequence, timestamp, job.received_ns, timings)
+            let mut reply = Reply::of(answer, planner.held(), sequence, timestamp, job.received_ns, timings);
+            if let Some(robot) = recovering.filter(|_| reply.reason == Reason::None) {
+                // The plan moves the robot out of the contact it was measured in.
+                (reply.reason, reply.reason_index) = (Reason::Recovering, robot as u32);
+            }
+            reply
         }
         Outcome::Task(answer, rejection) => {
             warn!(sequence, reason = ?rejection.reason, index = rejection.index, follow = ?answer.follow, "task rejected");
@@ -202,7 +211,7 @@ fn answer(
     reply.timings.total_us = us(job.received.elapsed());
     publish(publisher, &reply, sequence, metrics);
     metrics.latency(job.received.elapsed(), planner.deadline());
-    if let Outcome::Planned(Answer { by: Some(by), .. }) = &outcome {
+    if let Outcome::Planned(Answer { by: Some(by), .. }, _) = &outcome {
         metrics.won(by);
     }
 }
@@ -385,7 +394,7 @@ mod tests {
     /// The planner's answer of an outcome that was planned.
     fn planned(outcome: (Outcome, StageTimings)) -> (Answer, StageTimings) {
         match outcome {
-            (Outcome::Planned(answer), timings) => (answer, timings),
+            (Outcome::Planned(answer, _), timings) => (answer, timings),
             (other, _) => panic!("not planned: {other:?}"),
         }
     }

@@ -35,6 +35,8 @@ pub mod metrics;
 pub mod optimiser;
 pub mod plan;
 pub mod problem;
+pub mod problem_error;
+pub mod recovery;
 pub mod reference;
 pub mod route;
 pub mod scenario;

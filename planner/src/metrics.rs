@@ -8,7 +8,9 @@
 //!   obstacles (1 = touching; a moving obstacle while its motion is
 //!   predicted, [`crate::problem::Team::obstacle_prediction`]), and the
 //!   matching surface gaps in metres (`(scaled - 1) x separation`, exact
-//!   for discs and spheres);
+//!   for discs and spheres); while a start violation is recovered from
+//!   ([`crate::recovery`]), its distance is measured against its floor
+//!   (the ratio) and the box it may be outside of;
 //! - boundary error: worst mismatch of position, velocity and acceleration
 //!   at the start and at the goal;
 //! - [`Metrics::success`]: every clearance within
@@ -22,6 +24,7 @@ use serde::Serialize;
 
 use crate::plan::JointPlan;
 use crate::problem::{FEASIBILITY_TOLERANCE, Problem, scaled_norm};
+use crate::recovery::Recovery;
 
 /// Dense re-sampling density: this many instants per optimiser sample.
 pub const DENSE_FACTOR: usize = 4;
@@ -88,21 +91,30 @@ impl Metrics {
         let mut workspace_excess: f64 = 0.0;
         let mut max_speed: f64 = 0.0;
         let mut max_acceleration: f64 = 0.0;
+        let recovery = Recovery::of(problem);
+        // A distance against what holds at `t`: the separation, or a start
+        // violation's floor while it is recovered from.
+        let against =
+            |scaled: f64, floor: f64| if floor < 1.0 { scaled / floor.max(f64::MIN_POSITIVE) } else { scaled };
         for s in 0..dense {
             let t = plan.horizon * s as f64 / (dense - 1) as f64;
             let p: Vec<Vector3<f64>> = (0..n).map(|i| vec_at(&dpos, dense, i, s)).collect();
             for i in 0..n {
                 for j in i + 1..n {
-                    min_robot_scaled = min_robot_scaled.min(scaled_norm(dim, &(p[i] - p[j]), a, b));
+                    let scaled = against(scaled_norm(dim, &(p[i] - p[j]), a, b), recovery.pair_floor(i, j, t));
+                    min_robot_scaled = min_robot_scaled.min(scaled);
                 }
-                for o in problem.obstacles.iter().filter(|o| t <= team.predicted_until(&o.velocity)) {
+                for (m, o) in
+                    problem.obstacles.iter().enumerate().filter(|(_, o)| t <= team.predicted_until(&o.velocity))
+                {
                     let (ao, bo) = team.obstacle_separation(&o.shape);
-                    let scaled = scaled_norm(dim, &(p[i] - o.at(t)), ao, bo);
+                    let scaled = against(scaled_norm(dim, &(p[i] - o.at(t)), ao, bo), recovery.obstacle_floor(i, m, t));
                     min_obstacle_scaled = min_obstacle_scaled.min(scaled);
                     min_obstacle_clearance = min_obstacle_clearance.min((scaled - 1.0) * ao);
                 }
                 for ax in 0..axes {
-                    let out = (team.workspace.min[ax] - p[i][ax]).max(p[i][ax] - team.workspace.max[ax]);
+                    let (lo, hi) = recovery.bounds(i, ax, t, (team.workspace.min[ax], team.workspace.max[ax]));
+                    let out = (lo - p[i][ax]).max(p[i][ax] - hi);
                     workspace_excess = workspace_excess.max(out);
                 }
                 max_speed = max_speed.max(vec_at(&dvel, dense, i, s).norm());

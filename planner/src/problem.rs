@@ -24,9 +24,9 @@
 
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
-use thiserror::Error;
 
 use crate::basis::{BOUNDARY_ROWS, Basis, BasisError};
+pub use crate::problem_error::{Field, ProblemError};
 
 /// Relative tolerance on every clearance: a plan is feasible when every
 /// scaled distance is at least `1 - FEASIBILITY_TOLERANCE` (1% of the
@@ -169,6 +169,12 @@ pub struct Team {
     /// not; a daemon replanning at control rate sees its new course at once.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub obstacle_prediction: Option<f64>,
+    /// Seconds a robot whose measured start violates a constraint
+    /// (in an obstacle; touching another robot or outside the box by at
+    /// most [`RECOVERABLE_DEPTH`]) has to clear it; see
+    /// [`crate::recovery`]. `None`: such starts are rejected.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub start_recovery: Option<f64>,
 }
 
 impl Team {
@@ -199,6 +205,7 @@ impl Team {
             degree: Self::DEFAULT_DEGREE,
             samples: Self::DEFAULT_SAMPLES,
             obstacle_prediction: None,
+            start_recovery: None,
         }
     }
 
@@ -272,6 +279,9 @@ impl Team {
             positive(self.robot.half_height, Field::RobotHalfHeight, 0)?;
         }
         positive(self.horizon, Field::Horizon, 0)?;
+        if let Some(t) = self.start_recovery {
+            positive(t, Field::StartRecovery, 0)?;
+        }
         for a in 0..self.dim.axes() {
             finite(self.workspace.min[a], Field::Workspace, 0)?;
             finite(self.workspace.max[a], Field::Workspace, 1)?;
@@ -312,119 +322,72 @@ pub struct Problem {
     pub obstacles: Vec<Obstacle>,
 }
 
-/// Names of the inputs a [`ProblemError`] can point at.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-pub enum Field {
-    /// A start position.
-    StartPosition,
-    /// A start velocity.
-    StartVelocity,
-    /// A start acceleration.
-    StartAcceleration,
-    /// A goal.
-    Goal,
-    /// An obstacle position.
-    ObstaclePosition,
-    /// An obstacle velocity.
-    ObstacleVelocity,
-    /// An obstacle size.
-    ObstacleSize,
-    /// The robot radius.
-    RobotRadius,
-    /// The robot half-height.
-    RobotHalfHeight,
-    /// The horizon.
-    Horizon,
-    /// A workspace corner.
-    Workspace,
+/// The deepest overlap of two robots' starts, or start outside the box, a
+/// team with [`Team::start_recovery`] plans from: half a separation
+/// (scaled distance 0.5; half the horizontal separation outside the box).
+/// Robots cannot be that deep in each other, nor that far out of the box,
+/// without a wrong measurement. An obstacle (a walker bumping a robot,
+/// walking on through it) may be reported anywhere.
+pub const RECOVERABLE_DEPTH: f64 = 0.5;
+
+/// What a measured start violates.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Against {
+    /// Another robot (a higher index).
+    Robot(usize),
+    /// An obstacle.
+    Obstacle(usize),
+    /// A side of the box on an axis (`upper`: the maximum).
+    Box {
+        /// The axis.
+        axis: usize,
+        /// Whether it is the upper side.
+        upper: bool,
+    },
 }
 
-/// Why a problem is not plannable.
-#[derive(Debug, Clone, PartialEq, Error)]
-pub enum ProblemError {
-    /// Only 2 and 3 dimensions exist.
-    #[error("ProblemError::BadDimension: {0} (expected 2 or 3)")]
-    BadDimension(usize),
-    /// A team needs at least one robot.
-    #[error("ProblemError::NoRobots: a team needs at least one robot")]
-    NoRobots,
-    /// An input is NaN or infinite.
-    #[error("ProblemError::NonFinite: {field:?} #{index} is NaN or infinite")]
-    NonFinite {
-        /// Which input.
-        field: Field,
-        /// Robot or obstacle index.
-        index: usize,
-    },
-    /// A size or duration is zero or negative.
-    #[error("ProblemError::NonPositive: {field:?} #{index} must be positive")]
-    NonPositive {
-        /// Which input.
-        field: Field,
-        /// Obstacle index (0 for the team's own sizes).
-        index: usize,
-    },
-    /// A list has the wrong length.
-    #[error("ProblemError::WrongCount: {field:?} has {got} entries, expected {expected}")]
-    WrongCount {
-        /// Which list.
-        field: Field,
-        /// Length required by the team.
-        expected: usize,
-        /// Length given.
-        got: usize,
-    },
-    /// The workspace box is empty along an axis.
-    #[error("ProblemError::EmptyWorkspace: max <= min on axis {axis}")]
-    EmptyWorkspace {
-        /// Axis index.
-        axis: usize,
-    },
-    /// Two starts overlap beyond the tolerance.
-    #[error("ProblemError::StartsOverlap: robots {i} and {j} start at scaled distance {scaled:.3} < 1")]
-    StartsOverlap {
-        /// First robot.
-        i: usize,
-        /// Second robot.
-        j: usize,
-        /// Their scaled distance (1 = touching).
-        scaled: f64,
-    },
-    /// Two goals overlap.
-    #[error("ProblemError::GoalsOverlap: robots {i} and {j} have goals at scaled distance {scaled:.3} < 1")]
-    GoalsOverlap {
-        /// First robot.
-        i: usize,
-        /// Second robot.
-        j: usize,
-        /// Their scaled distance (1 = touching).
-        scaled: f64,
-    },
-    /// A robot starts inside an obstacle.
-    #[error("ProblemError::StartInObstacle: robot {robot} starts inside obstacle {obstacle}")]
-    StartInObstacle {
-        /// Robot index.
-        robot: usize,
-        /// Obstacle index.
-        obstacle: usize,
-    },
-    /// A goal is inside an obstacle at the horizon.
-    #[error("ProblemError::GoalInObstacle: robot {robot}'s goal is inside obstacle {obstacle} at the horizon")]
-    GoalInObstacle {
-        /// Robot index.
-        robot: usize,
-        /// Obstacle index.
-        obstacle: usize,
-    },
-    /// A start lies outside the workspace box (beyond the tolerance).
-    #[error("ProblemError::StartOutsideWorkspace: robot {0} starts outside the workspace")]
-    StartOutsideWorkspace(usize),
-    /// A goal lies outside the workspace box.
-    #[error("ProblemError::GoalOutsideWorkspace: robot {0}'s goal is outside the workspace")]
-    GoalOutsideWorkspace(usize),
-    /// The basis cannot be built.
-    #[error("ProblemError::Basis: {0}")]
-    Basis(#[from] BasisError),
+/// A constraint a measured start violates beyond [`FEASIBILITY_TOLERANCE`]
+/// ([`Problem::start_violations`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StartViolation {
+    /// The robot (the lower index of a pair).
+    pub robot: usize,
+    /// What it violates.
+    pub against: Against,
+    /// How deep: `1 - d0` for a pair or an obstacle at scaled distance
+    /// `d0`; the excess over the horizontal separation for the box.
+    pub depth: f64,
+    /// How fast it deepens: the rate the scaled distance shrinks at, or
+    /// the outward speed (m/s) for the box; 0 when it does not.
+    pub closing: f64,
+}
+
+impl StartViolation {
+    /// Whether a team with [`Team::start_recovery`] plans from it: an
+    /// obstacle at any depth, a robot or the box to [`RECOVERABLE_DEPTH`].
+    pub fn recoverable(&self) -> bool {
+        matches!(self.against, Against::Obstacle(_)) || self.depth <= RECOVERABLE_DEPTH
+    }
+
+    /// Its validation error.
+    pub fn error(&self) -> ProblemError {
+        match self.against {
+            Against::Robot(j) => ProblemError::StartsOverlap { i: self.robot, j, scaled: 1.0 - self.depth },
+            Against::Obstacle(m) => ProblemError::StartInObstacle { robot: self.robot, obstacle: m },
+            Against::Box { .. } => ProblemError::StartOutsideWorkspace(self.robot),
+        }
+    }
+}
+
+/// The depth and closing rate of a body at offset `d` from another
+/// (scaled by `(a, a, b)`), at relative velocity `v`, if it is closer than
+/// the tolerance allows.
+fn overlap(dim: Dim, d: Vector3<f64>, v: Vector3<f64>, a: f64, b: f64) -> Option<(f64, f64)> {
+    let scale = |x: Vector3<f64>| Vector3::new(x.x / a, x.y / a, if dim == Dim::Three { x.z / b } else { 0.0 });
+    let (ds, vs) = (scale(d), scale(v));
+    let d0 = ds.norm();
+    let closing = if d0 > 0.0 { (-ds.dot(&vs) / d0).max(0.0) } else { vs.norm() };
+    (d0 < 1.0 - FEASIBILITY_TOLERANCE).then_some((1.0 - d0, closing))
 }
 
 fn finite(v: f64, field: Field, index: usize) -> Result<(), ProblemError> {
@@ -468,9 +431,53 @@ impl Problem {
         b
     }
 
+    /// Every constraint the starts violate beyond [`FEASIBILITY_TOLERANCE`]:
+    /// the box robot by robot, robot pairs, then obstacles. Allocates only
+    /// when there is one.
+    pub fn start_violations(&self) -> Vec<StartViolation> {
+        let team = &self.team;
+        let (a, b) = team.separation();
+        let mut out = Vec::new();
+        for (i, s) in self.starts.iter().enumerate() {
+            for axis in 0..team.dim.axes() {
+                let (lo, hi, p, v) =
+                    (team.workspace.min[axis], team.workspace.max[axis], s.position[axis], s.velocity[axis]);
+                let slack = FEASIBILITY_TOLERANCE * a;
+                if p < lo - slack || p > hi + slack {
+                    let upper = p > hi;
+                    let (depth, closing) = if upper { (p - hi, v) } else { (lo - p, -v) };
+                    let against = Against::Box { axis, upper };
+                    out.push(StartViolation { robot: i, against, depth: depth / a, closing: closing.max(0.0) });
+                }
+            }
+        }
+        for (i, si) in self.starts.iter().enumerate() {
+            for (j, sj) in self.starts.iter().enumerate().skip(i + 1) {
+                if let Some((depth, closing)) =
+                    overlap(team.dim, si.position - sj.position, si.velocity - sj.velocity, a, b)
+                {
+                    out.push(StartViolation { robot: i, against: Against::Robot(j), depth, closing });
+                }
+            }
+        }
+        for (m, o) in self.obstacles.iter().enumerate() {
+            let (ao, bo) = team.obstacle_separation(&o.shape);
+            for (i, s) in self.starts.iter().enumerate() {
+                if let Some((depth, closing)) =
+                    overlap(team.dim, s.position - o.position, s.velocity - o.velocity, ao, bo)
+                {
+                    out.push(StartViolation { robot: i, against: Against::Obstacle(m), depth, closing });
+                }
+            }
+        }
+        out
+    }
+
     /// Checks every input: counts, finiteness, sizes, overlaps and the
     /// workspace. Starts may be within [`FEASIBILITY_TOLERANCE`] of touching
-    /// (they are measurements); goals must be strictly clear.
+    /// (they are measurements), or further in a team that recovers from
+    /// such starts ([`Team::start_recovery`], [`crate::recovery`]); goals
+    /// must be strictly clear.
     pub fn validate(&self) -> Result<(), ProblemError> {
         let team = &self.team;
         team.validate()?;
@@ -498,12 +505,8 @@ impl Problem {
                 positive(o.shape.half_height, Field::ObstacleSize, m)?;
             }
         }
-        let (a, _) = team.separation();
-        let slack = FEASIBILITY_TOLERANCE * a;
-        for (i, s) in self.starts.iter().enumerate() {
-            if !team.workspace.contains(dim, &s.position, slack) {
-                return Err(ProblemError::StartOutsideWorkspace(i));
-            }
+        if let Some(v) = self.start_violations().iter().find(|v| team.start_recovery.is_none() || !v.recoverable()) {
+            return Err(v.error());
         }
         for (i, g) in self.goals.iter().enumerate() {
             if !team.workspace.contains(dim, g, 0.0) {
@@ -512,10 +515,6 @@ impl Problem {
         }
         for i in 0..n {
             for j in i + 1..n {
-                let scaled = team.scaled_distance(&(self.starts[i].position - self.starts[j].position));
-                if scaled < 1.0 - FEASIBILITY_TOLERANCE {
-                    return Err(ProblemError::StartsOverlap { i, j, scaled });
-                }
                 let scaled = team.scaled_distance(&(self.goals[i] - self.goals[j]));
                 if scaled < 1.0 {
                     return Err(ProblemError::GoalsOverlap { i, j, scaled });
@@ -525,10 +524,6 @@ impl Problem {
         for (m, o) in self.obstacles.iter().enumerate() {
             let (ao, bo) = team.obstacle_separation(&o.shape);
             for i in 0..n {
-                let d0 = self.starts[i].position - o.at(0.0);
-                if scaled_norm(dim, &d0, ao, bo) < 1.0 - FEASIBILITY_TOLERANCE {
-                    return Err(ProblemError::StartInObstacle { robot: i, obstacle: m });
-                }
                 // Where the plan ends, if the obstacle is still predicted then.
                 let d1 = self.goals[i] - o.at(team.horizon);
                 if team.horizon <= team.predicted_until(&o.velocity) && scaled_norm(dim, &d1, ao, bo) < 1.0 {

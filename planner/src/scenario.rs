@@ -388,6 +388,7 @@ pub fn file_team(
         degree,
         samples,
         obstacle_prediction: None,
+        start_recovery: None,
     })
 }
 

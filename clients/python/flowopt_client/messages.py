@@ -82,6 +82,7 @@ class Reason(enum.IntEnum):
     NOT_FOLLOWING = 21
     LIMITS = 22
     WORLD_CHANGED = 23
+    RECOVERING = 24
 
     @property
     def is_rejection(self) -> bool:

@@ -113,16 +113,20 @@ impl Engine {
             beta,
             target,
             cold,
-            constraint: Limits::new(problem, &self.grid, 1.0 + margin, shrink).with_rules(chord, broad),
+            constraint: Limits::new(problem, &self.grid, 1.0 + margin, shrink)
+                .with_rules(chord, broad)
+                .with_recovery(problem, &self.grid),
             verify: Limits::new(problem, &self.dense, 1.0 + self.settings.verify_margin, [0.0; 3])
-                .with_rules(chord, broad),
+                .with_rules(chord, broad)
+                .with_recovery(problem, &self.dense),
             verify_start: Limits::new(
                 problem,
                 &self.dense_start,
                 1.0 - FEASIBILITY_TOLERANCE,
                 [-FEASIBILITY_TOLERANCE * t.separation().0; 3],
             )
-            .with_rules(chord, broad),
+            .with_rules(chord, broad)
+            .with_recovery(problem, &self.dense_start),
             boundary: b,
         })
     }

@@ -1,6 +1,8 @@
 //! The simulator's own check of every trajectory it is told to follow,
 //! independent of the daemon's: collision-free between robots and inside
-//! the box on a dense grid (within the success tolerance), starting where
+//! the box on a dense grid (within the success tolerance; a contact the
+//! robots were measured in held to its floor while they recover from it,
+//! `flowopt_planner::recovery`), starting where
 //! the robots are, and clear of the obstacles the controller reported in
 //! the snapshot the message answers, along their reported motion, over the
 //! rest of the plan (a moving obstacle within the window the daemon checks
@@ -10,6 +12,7 @@
 use flowopt_client::Followed;
 use flowopt_planner::metrics::{DENSE_FACTOR, Metrics};
 use flowopt_planner::problem::{FEASIBILITY_TOLERANCE, Obstacle, Problem, StartState, Team, scaled_norm};
+use flowopt_planner::recovery::Recovery;
 use nalgebra::Vector3;
 
 /// How far (m) a trajectory taken up may start from the robots' true
@@ -59,13 +62,20 @@ pub fn check(
         let age = (now_ns as f64 - f.origin_ns as f64) * 1e-6;
         return Err(Failure::Unverified(format!("it is {off:.4} m from the robots {age:.1} ms after its origin")));
     }
+    // Where a robot was measured in contact with a reported obstacle, the
+    // plan holds it to the contact's floor while it recovers.
+    let reported_at = (reported_ns as f64 - f.origin_ns as f64) * 1e-9;
+    let recovery = Recovery::of(&Problem {
+        obstacles: reported.iter().map(|o| Obstacle { position: o.at(-reported_at), ..*o }).collect(),
+        ..problem
+    });
     // The rest of the plan, from now, against the reported obstacles.
     let steps = DENSE_FACTOR * team.samples;
     let dt = f.plan.horizon / (steps - 1) as f64;
     let elapsed = (now_ns as f64 - f.origin_ns as f64) * 1e-9;
     let mut t = elapsed.max(0.0);
     while t <= f.plan.horizon {
-        let since_report = t - (reported_ns as f64 - f.origin_ns as f64) * 1e-9;
+        let since_report = t - reported_at;
         for (i, k) in f.plan.at(t).iter().enumerate() {
             for (j, o) in reported.iter().enumerate() {
                 if since_report > team.predicted_until(&o.velocity) {
@@ -75,7 +85,7 @@ pub fn check(
                 }
                 let (a, b) = team.obstacle_separation(&o.shape);
                 let d = scaled_norm(team.dim, &(k.position - o.at(since_report)), a, b);
-                if d < 1.0 - FEASIBILITY_TOLERANCE {
+                if d < recovery.obstacle_floor(i, j, t) * (1.0 - FEASIBILITY_TOLERANCE) {
                     return Err(Failure::ThroughObstacle(format!(
                         "robot {i} comes within {d:.3} of obstacle {j} {:.2} s after its origin",
                         t

@@ -110,6 +110,10 @@ impl Check<'_> {
     #[inline(always)]
     pub(super) fn violates<const D: usize>(&self, pair: Candidate, scratch: &mut Scratch) -> bool {
         let (i, j) = (pair.i as usize, pair.j as usize);
+        if self.limits.pair_has_floor(i, j) {
+            // Checked against its floor with the robots' obstacles.
+            return false;
+        }
         let bound = self.limits.chord.then(|| 1.0 + 0.25 * (self.steps[i] + self.steps[j]).powi(2));
         let (pi, pj) =
             (robot_rows::<D>(self.pos, self.n, self.count, i), robot_rows::<D>(self.pos, self.n, self.count, j));
@@ -177,6 +181,49 @@ impl Check<'_> {
                 hits.push(Hit { i: pair.i, j: pair.j, k: k as u32, c: c3 });
             }
         }
+    }
+}
+
+impl Scratch {
+    /// Pushes `p` away from `q` (rows over the same instants) wherever
+    /// they come closer than their target: 1 (or the chord target) scaled
+    /// by `floor` at the first `until` instants, where a start violation
+    /// is recovered from ([`crate::recovery`]). Hands each instant's
+    /// correction of `p` to `add(k, c)` and returns whether there was any.
+    #[allow(clippy::too_many_arguments, reason = "one pair's rows, sizes and floor")]
+    pub(super) fn push_with_floor<const D: usize>(
+        &mut self,
+        p: &[&[f64]; D],
+        q: &[&[f64]; D],
+        inv: &[f64; 3],
+        sep: &[f64; 3],
+        chord: bool,
+        (until, floor): (usize, f64),
+        ids: (usize, usize),
+        mut add: impl FnMut(usize, [f64; D]),
+    ) -> bool {
+        let count = p[0].len();
+        if chord {
+            // An unbounded screen leaves every instant's chord target.
+            self.violated::<D>(p, q, inv, Some(f64::INFINITY), 0..count);
+        } else {
+            self.target[..count].fill(1.0);
+        }
+        for t in &mut self.target[..until.min(count)] {
+            *t *= floor * floor;
+        }
+        let mut any = false;
+        for k in 0..count {
+            if let Some(c) = push::<D>(p, q, k, inv, sep, self.target[k], ids) {
+                any = true;
+                add(k, c);
+            }
+        }
+        if !chord {
+            // The other pairs read 1 without a chord.
+            self.target[..count].fill(1.0);
+        }
+        any
     }
 }
 

@@ -17,6 +17,7 @@ use super::limits::Limits;
 use super::memory::{BlockSums, PartMemory, Projection, ROBOT_BLOCK, block_robots};
 use crate::crew::{Crew, Disjoint, share};
 use crate::linalg::{Accum, gemm};
+use crate::problem::Against;
 
 /// Rows `[axis][robot]` of robots `robots` on axis `a`, `n` robots, each
 /// `width` long: the range of the flat buffer.
@@ -232,7 +233,10 @@ impl Projection {
                         let until = limits.until[m];
                         let inv = sep.map(|s| 1.0 / (s * s));
                         let track = robot_rows::<D>(&limits.tracks[m * D * count..(m + 1) * D * count], 1, count, 0);
-                        if until == 0 || !scratch.violated::<D>(&pi, &track, &inv, bounds[m], 0..until) {
+                        if until == 0
+                            || limits.obstacle_has_floor(i, m)
+                            || !scratch.violated::<D>(&pi, &track, &inv, bounds[m], 0..until)
+                        {
                             continue;
                         }
                         if first {
@@ -250,20 +254,67 @@ impl Projection {
                             }
                         }
                     }
+                    for f in limits.floors.iter().filter(|f| f.robot == i || f.against == Against::Robot(i)) {
+                        let (q, sep, instants, other) = match f.against {
+                            Against::Robot(j) => (robot_rows::<D>(pos, n, count, j), &limits.robot_sep, count, j),
+                            Against::Obstacle(m) => {
+                                let track = &limits.tracks[m * D * count..(m + 1) * D * count];
+                                (robot_rows::<D>(track, 1, count, 0), &limits.obstacle_sep[m], limits.until[m], m)
+                            }
+                            Against::Box { .. } => continue,
+                        };
+                        let p = robot_rows::<D>(pos, n, count, f.robot);
+                        let (p, q): ([&[f64]; D], [&[f64]; D]) =
+                            (std::array::from_fn(|a| &p[a][..instants]), std::array::from_fn(|a| &q[a][..instants]));
+                        let inv = sep.map(|s| 1.0 / (s * s));
+                        // The same correction in either robot's block: `+c` to
+                        // the first, `-c` to the other robot of a pair.
+                        let sign = if f.robot == i { 1.0 } else { -1.0 };
+                        let floor = (f.until, f.floor);
+                        let hit = scratch.push_with_floor::<D>(
+                            &p,
+                            &q,
+                            &inv,
+                            sep,
+                            limits.chord,
+                            floor,
+                            (f.robot, other),
+                            |k, c| {
+                                if !first {
+                                    for a in 0..D {
+                                        rows[a][r * count + k] += sign * c[a];
+                                        obstacle_sq += if sign > 0.0 { c[a] * c[a] } else { 0.0 };
+                                    }
+                                }
+                            },
+                        );
+                        if hit && first {
+                            sums.violated = true;
+                            return;
+                        }
+                        touched[r] |= hit;
+                    }
                 }
                 for (a, axis) in rows.iter_mut().enumerate() {
-                    let (lo, hi) = (limits.lo[a], limits.hi[a]);
                     let positions = &pos[block_rows(a, n, &robots, count)];
-                    for ((row, p), t) in
-                        axis.chunks_exact_mut(count).zip(positions.chunks_exact(count)).zip(touched.iter_mut())
+                    for (r, ((row, p), t)) in axis
+                        .chunks_exact_mut(count)
+                        .zip(positions.chunks_exact(count))
+                        .zip(touched.iter_mut())
+                        .enumerate()
                     {
-                        let mut any = false;
-                        for (c, p) in row.iter_mut().zip(p) {
-                            let d = p.clamp(lo, hi) - p;
-                            *c += d;
-                            box_sq += d * d;
-                            any |= d != 0.0;
-                        }
+                        let (lo, hi) = (limits.lo[a], limits.hi[a]);
+                        let (sq, any) = match limits.box_floor(robots.start + r, a) {
+                            None => clamp_row(row, p, lo, hi),
+                            Some((until, l, h)) => {
+                                let (head, tail) = row.split_at_mut(until.min(count));
+                                let (first, rest) = p.split_at(head.len());
+                                let (s0, a0) = clamp_row(head, first, l, h);
+                                let (s1, a1) = clamp_row(tail, rest, lo, hi);
+                                (s0 + s1, a0 || a1)
+                            }
+                        };
+                        box_sq += sq;
                         *t |= any;
                     }
                     if !first {
@@ -276,6 +327,20 @@ impl Projection {
             }
         });
     }
+}
+
+/// Clamps positions `p` into `[lo, hi]`, adding the moves to `row`: the
+/// moves' squared sum and whether any moved.
+#[inline(always)]
+fn clamp_row(row: &mut [f64], p: &[f64], lo: f64, hi: f64) -> (f64, bool) {
+    let (mut sq, mut any) = (0.0, false);
+    for (c, p) in row.iter_mut().zip(p) {
+        let d = p.clamp(lo, hi) - p;
+        *c += d;
+        sq += d * d;
+        any |= d != 0.0;
+    }
+    (sq, any)
 }
 
 /// Adds the hits of the chunks `spans` (of the parts' hit lists `hits`) on

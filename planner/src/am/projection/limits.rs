@@ -2,7 +2,24 @@
 //! box, and the obstacles' centres at the grid's instants.
 
 use super::grid::SampleGrid;
+use crate::problem::Against;
 use crate::problem::Problem;
+use crate::recovery::Recovery;
+
+/// A start violation's floor on a grid ([`crate::recovery`]): what holds
+/// at its instants before `until` instead of the constraint.
+#[derive(Debug, Clone, Copy)]
+pub(super) struct Floor {
+    /// The robot (the lower index of a pair).
+    pub(super) robot: usize,
+    /// What it violated at the start.
+    pub(super) against: Against,
+    /// The instants `0..until` the floor holds at.
+    pub(super) until: usize,
+    /// The least scaled distance (a pair or an obstacle) or the coordinate
+    /// the robot stays within (a side of the box).
+    pub(super) floor: f64,
+}
 
 /// Sizes, box and obstacle tracks one projection checks against.
 #[derive(Debug, Clone)]
@@ -23,6 +40,10 @@ pub struct Limits {
     pub(super) chord: bool,
     /// Find the robot pairs to check by sweep-and-prune (large teams).
     pub(super) broad_phase: bool,
+    /// The floors of the start's violations (empty without any).
+    pub(super) floors: Vec<Floor>,
+    /// Per robot, whether it is in a pair with a floor (empty without any).
+    pub(super) pair_floors: Vec<bool>,
 }
 
 impl Limits {
@@ -83,7 +104,67 @@ impl Limits {
             until,
             chord: false,
             broad_phase: false,
+            floors: Vec::new(),
+            pair_floors: Vec::new(),
         }
+    }
+
+    /// The same limits with the floors of `problem`'s start violations at
+    /// `grid`'s instants ([`crate::recovery`]; none without any).
+    pub(crate) fn with_recovery(mut self, problem: &Problem, grid: &SampleGrid) -> Self {
+        let recovery = Recovery::of(problem);
+        if recovery.violations.is_empty() || recovery.until <= 0.0 {
+            return self;
+        }
+        let until = grid.taus.iter().take_while(|tau| **tau * problem.team.horizon < recovery.until).count();
+        self.floors = recovery
+            .violations
+            .iter()
+            .map(|v| Floor { robot: v.robot, against: v.against, until, floor: v.floor })
+            .collect();
+        if recovery.violations.iter().any(|v| matches!(v.against, Against::Robot(_))) {
+            self.pair_floors = vec![false; problem.team.robots];
+            for v in &recovery.violations {
+                if let Against::Robot(j) = v.against {
+                    (self.pair_floors[v.robot], self.pair_floors[j]) = (true, true);
+                }
+            }
+        }
+        self
+    }
+
+    /// Whether robots `i` and `j` have a floor (and are checked by it, not
+    /// with the other pairs).
+    #[inline(always)]
+    pub(super) fn pair_has_floor(&self, i: usize, j: usize) -> bool {
+        !self.pair_floors.is_empty()
+            && self.pair_floors[i]
+            && self.pair_floors[j]
+            && self.floors.iter().any(|f| f.robot == i.min(j) && f.against == Against::Robot(i.max(j)))
+    }
+
+    /// Whether robot `i` has a floor against obstacle `m`.
+    pub(super) fn obstacle_has_floor(&self, i: usize, m: usize) -> bool {
+        self.floors.iter().any(|f| f.robot == i && f.against == Against::Obstacle(m))
+    }
+
+    /// Robot `i`'s box on `axis` at its first `until` instants, if it
+    /// recovers from outside the box there: `(until, lo, hi)`.
+    pub(super) fn box_floor(&self, i: usize, axis: usize) -> Option<(usize, f64, f64)> {
+        let mut out: Option<(usize, f64, f64)> = None;
+        for f in self.floors.iter().filter(|f| f.robot == i) {
+            if let Against::Box { axis: x, upper } = f.against
+                && x == axis
+            {
+                let (_, lo, hi) = out.get_or_insert((f.until, self.lo[axis], self.hi[axis]));
+                if upper {
+                    *hi = hi.max(f.floor);
+                } else {
+                    *lo = lo.min(f.floor);
+                }
+            }
+        }
+        out
     }
 
     /// The same limits checked with `chord` inflation (see [`Projection`])

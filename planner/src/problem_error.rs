@@ -1,0 +1,124 @@
+//! Why a problem is not plannable: [`ProblemError`], and the [`Field`]
+//! an error points at ([`crate::problem::Problem::validate`]).
+
+use serde::{Deserialize, Serialize};
+use thiserror::Error;
+
+use crate::basis::BasisError;
+
+/// Names of the inputs a [`ProblemError`] can point at.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum Field {
+    /// A start position.
+    StartPosition,
+    /// A start velocity.
+    StartVelocity,
+    /// A start acceleration.
+    StartAcceleration,
+    /// A goal.
+    Goal,
+    /// An obstacle position.
+    ObstaclePosition,
+    /// An obstacle velocity.
+    ObstacleVelocity,
+    /// An obstacle size.
+    ObstacleSize,
+    /// The robot radius.
+    RobotRadius,
+    /// The robot half-height.
+    RobotHalfHeight,
+    /// The horizon.
+    Horizon,
+    /// A workspace corner.
+    Workspace,
+    /// The start recovery time.
+    StartRecovery,
+}
+
+/// Why a problem is not plannable.
+#[derive(Debug, Clone, PartialEq, Error)]
+pub enum ProblemError {
+    /// Only 2 and 3 dimensions exist.
+    #[error("ProblemError::BadDimension: {0} (expected 2 or 3)")]
+    BadDimension(usize),
+    /// A team needs at least one robot.
+    #[error("ProblemError::NoRobots: a team needs at least one robot")]
+    NoRobots,
+    /// An input is NaN or infinite.
+    #[error("ProblemError::NonFinite: {field:?} #{index} is NaN or infinite")]
+    NonFinite {
+        /// Which input.
+        field: Field,
+        /// Robot or obstacle index.
+        index: usize,
+    },
+    /// A size or duration is zero or negative.
+    #[error("ProblemError::NonPositive: {field:?} #{index} must be positive")]
+    NonPositive {
+        /// Which input.
+        field: Field,
+        /// Obstacle index (0 for the team's own sizes).
+        index: usize,
+    },
+    /// A list has the wrong length.
+    #[error("ProblemError::WrongCount: {field:?} has {got} entries, expected {expected}")]
+    WrongCount {
+        /// Which list.
+        field: Field,
+        /// Length required by the team.
+        expected: usize,
+        /// Length given.
+        got: usize,
+    },
+    /// The workspace box is empty along an axis.
+    #[error("ProblemError::EmptyWorkspace: max <= min on axis {axis}")]
+    EmptyWorkspace {
+        /// Axis index.
+        axis: usize,
+    },
+    /// Two starts overlap beyond the tolerance.
+    #[error("ProblemError::StartsOverlap: robots {i} and {j} start at scaled distance {scaled:.3} < 1")]
+    StartsOverlap {
+        /// First robot.
+        i: usize,
+        /// Second robot.
+        j: usize,
+        /// Their scaled distance (1 = touching).
+        scaled: f64,
+    },
+    /// Two goals overlap.
+    #[error("ProblemError::GoalsOverlap: robots {i} and {j} have goals at scaled distance {scaled:.3} < 1")]
+    GoalsOverlap {
+        /// First robot.
+        i: usize,
+        /// Second robot.
+        j: usize,
+        /// Their scaled distance (1 = touching).
+        scaled: f64,
+    },
+    /// A robot starts inside an obstacle.
+    #[error("ProblemError::StartInObstacle: robot {robot} starts inside obstacle {obstacle}")]
+    StartInObstacle {
+        /// Robot index.
+        robot: usize,
+        /// Obstacle index.
+        obstacle: usize,
+    },
+    /// A goal is inside an obstacle at the horizon.
+    #[error("ProblemError::GoalInObstacle: robot {robot}'s goal is inside obstacle {obstacle} at the horizon")]
+    GoalInObstacle {
+        /// Robot index.
+        robot: usize,
+        /// Obstacle index.
+        obstacle: usize,
+    },
+    /// A start lies outside the workspace box (beyond the tolerance).
+    #[error("ProblemError::StartOutsideWorkspace: robot {0} starts outside the workspace")]
+    StartOutsideWorkspace(usize),
+    /// A goal lies outside the workspace box.
+    #[error("ProblemError::GoalOutsideWorkspace: robot {0}'s goal is outside the workspace")]
+    GoalOutsideWorkspace(usize),
+    /// The basis cannot be built.
+    #[error("ProblemError::Basis: {0}")]
+    Basis(#[from] BasisError),
+}

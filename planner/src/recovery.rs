@@ -1,0 +1,296 @@
+//! Planning from a start that already violates a constraint: a robot
+//! measured touching another robot or an obstacle (a walker bumped it), or
+//! outside the box (a gust pushed it out while it braked).
+//!
+//! A plan cannot meet at its first instants a constraint its measured
+//! start violates, so without this such a start makes the whole team's
+//! task unplannable, and every robot stops while the one in contact waits
+//! for the contact to go away by itself. With a team's
+//! [`crate::problem::Team::start_recovery`] set, [`Problem::validate`] accepts starts in
+//! an obstacle however deep (a walker is where it is reported) and starts
+//! touching another robot or outside the box by at most
+//! [`crate::problem::RECOVERABLE_DEPTH`] (deeper is more likely a wrong measurement), and every
+//! planner holds that constraint, for that robot (that pair) alone, to a
+//! floor until the recovery time has passed and in full from then on:
+//!
+//! - a pair or a robot and an obstacle at measured scaled distance `d0`,
+//!   closing at scaled speed `u`, keep at least
+//!   `(1 - RECOVERY_SLACK) d0 - u T_r / 4` (what braking within half the
+//!   recovery time `T_r` allows), never below 0;
+//! - a robot `e` outside the box on an axis, moving outwards at `u`, keeps
+//!   within `e (1 + RECOVERY_SLACK) + u T_r / 4` of that side.
+//!
+//! Every other constraint holds in full from the first instant. The
+//! optimiser's projection, its dense verification ([`crate::am::Limits`])
+//! and [`crate::metrics::Metrics`] read the floors from here.
+//!
+//! ```
+//! use flowopt_planner::problem::{Against, Dim, Problem, StartState, Team};
+//! use flowopt_planner::recovery::Recovery;
+//! use nalgebra::Vector3;
+//!
+//! // Robot 1 is measured 4 mm outside the box's right side, at rest.
+//! let team = Team { start_recovery: Some(1.0), ..Team::default_for(Dim::Two, 2) };
+//! let problem = Problem {
+//!     team,
+//!     starts: vec![StartState::at_rest(Vector3::new(0.0, 0.0, 0.0)), StartState::at_rest(Vector3::new(1.004, 0.0, 0.0))],
+//!     goals: vec![Vector3::new(0.0, 0.5, 0.0), Vector3::new(0.5, 0.0, 0.0)],
+//!     obstacles: vec![],
+//! };
+//! problem.validate().unwrap();
+//! let recovery = Recovery::of(&problem);
+//! assert_eq!(recovery.violations[0].against, Against::Box { axis: 0, upper: true });
+//! // For its first second it may stay where it is (and a little further out); then in the box.
+//! let (_, hi) = recovery.bounds(1, 0, 0.5, (-1.0, 1.0));
+//! assert!(hi > 1.004 && hi < 1.005);
+//! assert_eq!(recovery.bounds(1, 0, 1.0, (-1.0, 1.0)), (-1.0, 1.0));
+//! ```
+
+use crate::problem::{Against, Problem};
+
+/// How much deeper than measured a violation may become during recovery,
+/// as a share of the measured distance (or excess): room for the plan,
+/// which starts at the measured state, to turn.
+pub const RECOVERY_SLACK: f64 = 0.1;
+
+/// One constraint a measured start violates
+/// ([`crate::problem::StartViolation`]) and its floor.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Violation {
+    /// The robot (the lower index of a pair).
+    pub robot: usize,
+    /// What it violates.
+    pub against: Against,
+    /// What holds until the recovery time: the least scaled distance for a
+    /// pair or an obstacle, the coordinate the robot stays within for a
+    /// side of the box.
+    pub floor: f64,
+}
+
+/// Every start violation of a problem and how long its floors hold.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Recovery {
+    /// Seconds from the start the floors hold for (0 without
+    /// [`crate::problem::Team::start_recovery`]).
+    pub until: f64,
+    /// The violations, in the order [`Problem::validate`] reports them:
+    /// the box robot by robot, pairs, then obstacles.
+    pub violations: Vec<Violation>,
+}
+
+impl Recovery {
+    /// The start violations of `problem`
+    /// ([`Problem::start_violations`]) with their floors. Does not
+    /// allocate when there are none.
+    pub fn of(problem: &Problem) -> Self {
+        let team = &problem.team;
+        let until = team.start_recovery.unwrap_or(0.0);
+        let quarter = until / 4.0;
+        let violations = problem
+            .start_violations()
+            .into_iter()
+            .map(|v| {
+                let floor = match v.against {
+                    Against::Box { axis, upper } => {
+                        let p = problem.starts[v.robot].position[axis];
+                        let out = RECOVERY_SLACK * v.depth * team.separation().0 + v.closing * quarter;
+                        if upper { p + out } else { p - out }
+                    }
+                    _ => ((1.0 - RECOVERY_SLACK) * (1.0 - v.depth) - v.closing * quarter).max(0.0),
+                };
+                Violation { robot: v.robot, against: v.against, floor }
+            })
+            .collect();
+        Self { until, violations }
+    }
+
+    /// The least scaled distance robots `i < j` keep `t` s after the start
+    /// (1: the separation).
+    pub fn pair_floor(&self, i: usize, j: usize, t: f64) -> f64 {
+        self.floor(i, Against::Robot(j), t)
+    }
+
+    /// The least scaled distance robot `i` keeps from obstacle `m` `t` s
+    /// after the start.
+    pub fn obstacle_floor(&self, i: usize, m: usize, t: f64) -> f64 {
+        self.floor(i, Against::Obstacle(m), t)
+    }
+
+    /// The bounds `(lo, hi)` robot `i` stays within on `axis` `t` s after
+    /// the start: `box_` unless it recovers from outside it.
+    pub fn bounds(&self, i: usize, axis: usize, t: f64, box_: (f64, f64)) -> (f64, f64) {
+        let (mut lo, mut hi) = box_;
+        if t < self.until {
+            for v in self.violations.iter().filter(|v| v.robot == i) {
+                match v.against {
+                    Against::Box { axis: x, upper: false } if x == axis => lo = lo.min(v.floor),
+                    Against::Box { axis: x, upper: true } if x == axis => hi = hi.max(v.floor),
+                    _ => {}
+                }
+            }
+        }
+        (lo, hi)
+    }
+
+    fn floor(&self, i: usize, against: Against, t: f64) -> f64 {
+        if t >= self.until {
+            return 1.0;
+        }
+        self.violations.iter().find(|v| v.robot == i && v.against == against).map_or(1.0, |v| v.floor.min(1.0))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use nalgebra::Vector3;
+
+    use super::*;
+    use crate::am::{AmSettings, Engine, Objective, Stop};
+    use crate::metrics::Metrics;
+    use crate::plan::JointPlan;
+    use crate::problem::{Dim, FEASIBILITY_TOLERANCE, ProblemError, Team};
+    use crate::problem::{Obstacle, Spheroid, StartState};
+
+    /// Four robots at rest in the default 2D box, going to the opposite
+    /// corners' side; `with` moves things before the team recovers in 1 s.
+    fn four(with: impl FnOnce(&mut Problem)) -> Problem {
+        let team = Team { start_recovery: Some(1.0), ..Team::default_for(Dim::Two, 4) };
+        let at = |x: f64, y: f64| Vector3::new(x, y, 0.0);
+        let mut problem = Problem {
+            team,
+            starts: [at(-0.5, -0.5), at(0.5, -0.5), at(0.5, 0.5), at(-0.5, 0.5)].map(StartState::at_rest).to_vec(),
+            goals: vec![at(0.5, 0.5), at(-0.5, 0.5), at(-0.5, -0.5), at(0.5, -0.5)],
+            obstacles: vec![],
+        };
+        with(&mut problem);
+        problem
+    }
+
+    /// The verified plan of `problem` (one thread, and the same on two).
+    fn planned(problem: &Problem) -> JointPlan {
+        let solve = |threads| {
+            let settings = AmSettings { threads, ..AmSettings::optimiser() };
+            let engine =
+                Engine::new(&problem.team, problem.obstacles.len(), Objective::smoothness(), settings).unwrap();
+            let outcome = engine.solve(problem).unwrap();
+            assert_eq!(outcome.stop, Stop::Verified, "{:?}", Recovery::of(problem));
+            engine.plan(outcome.state.xi)
+        };
+        let one = solve(1);
+        assert_eq!(solve(2).coeffs, one.coeffs, "the same plan on every crew");
+        let m = Metrics::measure(problem, &one);
+        assert!(m.success(problem.team.separation().0), "{m:?}");
+        one
+    }
+
+    #[test]
+    fn a_robot_measured_outside_the_box_is_planned_back_in_within_the_recovery_time() {
+        let problem = four(|p| {
+            p.starts[1] = StartState {
+                velocity: Vector3::new(0.2, 0.0, 0.0),
+                ..StartState::at_rest(Vector3::new(1.01, -0.5, 0.0))
+            }
+        });
+        let strict = Problem { team: Team { start_recovery: None, ..problem.team.clone() }, ..problem.clone() };
+        assert_eq!(strict.validate(), Err(ProblemError::StartOutsideWorkspace(1)));
+        let plan = planned(&problem);
+        // Out of the box at first (it was moving outwards), then inside.
+        let x = |t: f64| plan.at(t)[1].position.x;
+        assert!(x(0.1) > 1.01, "{}", x(0.1));
+        for k in 0..=40 {
+            let t = 1.0 + k as f64 * 0.1;
+            assert!(x(t) <= 1.0 + FEASIBILITY_TOLERANCE * 0.2, "x({t}) = {}", x(t));
+        }
+        assert!(Metrics::measure(&strict, &plan).workspace_excess > 0.01, "it did start outside");
+    }
+
+    #[test]
+    fn two_robots_measured_in_contact_part_and_are_never_pushed_deeper() {
+        let problem = four(|p| p.starts[1].position = Vector3::new(-0.31, -0.5, 0.0));
+        let recovery = Recovery::of(&problem);
+        assert_eq!(recovery.violations.len(), 1);
+        let v = recovery.violations[0];
+        assert_eq!((v.robot, v.against), (0, Against::Robot(1)));
+        assert!((v.floor - 0.9 * 0.95).abs() < 1e-12, "at rest: 90% of the measured 0.95");
+        let plan = planned(&problem);
+        let scaled = |t: f64| {
+            let at = plan.at(t);
+            problem.team.scaled_distance(&(at[0].position - at[1].position))
+        };
+        for k in 1..=50 {
+            let t = k as f64 * 0.1;
+            let least = if t < 1.0 { v.floor } else { 1.0 - FEASIBILITY_TOLERANCE };
+            assert!(scaled(t) >= least, "{} at {t} s", scaled(t));
+        }
+    }
+
+    #[test]
+    fn a_robot_a_walker_bumps_gets_out_of_its_way() {
+        // A walker of radius 0.15 m 3% into robot 2, walking at it at
+        // 0.4 m/s.
+        let problem = four(|p| {
+            let r = p.starts[2].position;
+            let d = 0.97 * 0.25;
+            p.obstacles = vec![Obstacle {
+                position: r + Vector3::new(-d, 0.0, 0.0),
+                velocity: Vector3::new(0.4, 0.0, 0.0),
+                shape: Spheroid::ball(0.15),
+            }];
+            p.goals[0] = Vector3::new(0.0, 0.0, 0.0);
+        });
+        let recovery = Recovery::of(&problem);
+        assert_eq!(
+            recovery.violations.iter().map(|v| (v.robot, v.against)).collect::<Vec<_>>(),
+            [(2, Against::Obstacle(0))]
+        );
+        let plan = planned(&problem);
+        let o = &problem.obstacles[0];
+        let (a, b) = problem.team.obstacle_separation(&o.shape);
+        let floor = recovery.violations[0].floor;
+        for k in 1..=50 {
+            let t = k as f64 * 0.1;
+            let d = crate::problem::scaled_norm(Dim::Two, &(plan.at(t)[2].position - o.at(t)), a, b);
+            let least = if t < 1.0 { floor } else { 1.0 - FEASIBILITY_TOLERANCE };
+            assert!(d >= least, "{d} at {t} s");
+        }
+    }
+
+    #[test]
+    fn a_walker_reported_on_a_robot_is_planned_around_within_the_recovery_time() {
+        let problem = four(|p| {
+            p.obstacles = vec![Obstacle {
+                position: p.starts[2].position + Vector3::new(-0.02, 0.0, 0.0),
+                velocity: Vector3::new(0.4, 0.0, 0.0),
+                shape: Spheroid::ball(0.15),
+            }];
+            p.goals[0] = Vector3::new(0.0, 0.0, 0.0);
+        });
+        let v = Recovery::of(&problem).violations[0];
+        assert_eq!((v.robot, v.against, v.floor), (2, Against::Obstacle(0), 0.0));
+        let plan = planned(&problem);
+        let o = &problem.obstacles[0];
+        let (a, b) = problem.team.obstacle_separation(&o.shape);
+        for k in 10..=50 {
+            let t = k as f64 * 0.1;
+            let d = crate::problem::scaled_norm(Dim::Two, &(plan.at(t)[2].position - o.at(t)), a, b);
+            assert!(d >= 1.0 - FEASIBILITY_TOLERANCE, "{d} at {t} s");
+        }
+    }
+
+    #[test]
+    fn deeper_violations_and_teams_without_a_recovery_time_are_rejected() {
+        let deep = four(|p| p.starts[1].position = Vector3::new(-0.45, -0.5, 0.0));
+        assert!(matches!(deep.validate(), Err(ProblemError::StartsOverlap { i: 0, j: 1, .. })));
+        let out = four(|p| p.starts[1].position = Vector3::new(1.2, -0.5, 0.0));
+        assert_eq!(out.validate(), Err(ProblemError::StartOutsideWorkspace(1)));
+        let touching = four(|p| p.starts[1].position = Vector3::new(-0.31, -0.5, 0.0));
+        touching.validate().unwrap();
+        let strict = Problem { team: Team { start_recovery: None, ..touching.team.clone() }, ..touching };
+        assert!(matches!(strict.validate(), Err(ProblemError::StartsOverlap { i: 0, j: 1, .. })));
+        let bad = Team { start_recovery: Some(0.0), ..Team::default_for(Dim::Two, 2) };
+        assert_eq!(
+            bad.validate(),
+            Err(ProblemError::NonPositive { field: crate::problem::Field::StartRecovery, index: 0 })
+        );
+    }
+}
