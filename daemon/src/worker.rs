@@ -185,7 +185,7 @@ fn answer(
         Outcome::Planned(answer, recovering) => {
             debug!(sequence, follow = ?answer.follow, why = ?answer.why, iterations = answer.iterations, "answered");
             let mut reply = Reply::of(answer, planner.held(), sequence, timestamp, job.received_ns, timings);
-            if let Some(robot) = recovering.filter(|_| reply.reason == Reason::None) {
+            if let Some(robot) = recovering.filter(|_| reply.status == PlanStatus::Ok && reply.reason == Reason::None) {
                 // The plan moves the robot out of the contact it was measured in.
                 (reply.reason, reply.reason_index) = (Reason::Recovering, robot as u32);
             }

@@ -35,7 +35,7 @@ pub mod metrics;
 pub mod optimiser;
 pub mod plan;
 pub mod problem;
-pub mod problem_error;
+mod problem_error;
 pub mod recovery;
 pub mod reference;
 pub mod route;

@@ -10,7 +10,8 @@
 //!   matching surface gaps in metres (`(scaled - 1) x separation`, exact
 //!   for discs and spheres); while a start violation is recovered from
 //!   ([`crate::recovery`]), its distance is measured against its floor
-//!   (the ratio) and the box it may be outside of;
+//!   (the ratio, and the gap from it; none while the floor is 0) and the
+//!   box it may be outside of;
 //! - boundary error: worst mismatch of position, velocity and acceleration
 //!   at the start and at the goal;
 //! - [`Metrics::success`]: every clearance within
@@ -94,8 +95,11 @@ impl Metrics {
         let recovery = Recovery::of(problem);
         // A distance against what holds at `t`: the separation, or a start
         // violation's floor while it is recovered from.
-        let against =
-            |scaled: f64, floor: f64| if floor < 1.0 { scaled / floor.max(f64::MIN_POSITIVE) } else { scaled };
+        let against = |scaled: f64, floor: f64| match floor {
+            f if f >= 1.0 => scaled,
+            f if f > 0.0 => scaled / f,
+            _ => f64::INFINITY,
+        };
         for s in 0..dense {
             let t = plan.horizon * s as f64 / (dense - 1) as f64;
             let p: Vec<Vector3<f64>> = (0..n).map(|i| vec_at(&dpos, dense, i, s)).collect();

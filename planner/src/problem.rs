@@ -302,11 +302,12 @@ impl Team {
 
 /// `||diag(a, a, b)^-1 d||` in `dim` axes.
 pub fn scaled_norm(dim: Dim, d: &Vector3<f64>, a: f64, b: f64) -> f64 {
-    let h = (d.x / a).powi(2) + (d.y / a).powi(2);
-    match dim {
-        Dim::Two => h.sqrt(),
-        Dim::Three => (h + (d.z / b).powi(2)).sqrt(),
-    }
+    scaled(dim, d, a, b).norm()
+}
+
+/// `diag(a, a, b)^-1 d` in `dim` axes (the third entry 0 in 2D).
+fn scaled(dim: Dim, d: &Vector3<f64>, a: f64, b: f64) -> Vector3<f64> {
+    Vector3::new(d.x / a, d.y / a, if dim == Dim::Three { d.z / b } else { 0.0 })
 }
 
 /// One planning instance.
@@ -383,8 +384,7 @@ impl StartViolation {
 /// (scaled by `(a, a, b)`), at relative velocity `v`, if it is closer than
 /// the tolerance allows.
 fn overlap(dim: Dim, d: Vector3<f64>, v: Vector3<f64>, a: f64, b: f64) -> Option<(f64, f64)> {
-    let scale = |x: Vector3<f64>| Vector3::new(x.x / a, x.y / a, if dim == Dim::Three { x.z / b } else { 0.0 });
-    let (ds, vs) = (scale(d), scale(v));
+    let (ds, vs) = (scaled(dim, &d, a, b), scaled(dim, &v, a, b));
     let d0 = ds.norm();
     let closing = if d0 > 0.0 { (-ds.dot(&vs) / d0).max(0.0) } else { vs.norm() };
     (d0 < 1.0 - FEASIBILITY_TOLERANCE).then_some((1.0 - d0, closing))
@@ -438,11 +438,13 @@ impl Problem {
         let team = &self.team;
         let (a, b) = team.separation();
         let mut out = Vec::new();
-        for (i, s) in self.starts.iter().enumerate() {
+        let slack = FEASIBILITY_TOLERANCE * a;
+        for (i, s) in
+            self.starts.iter().enumerate().filter(|(_, s)| !team.workspace.contains(team.dim, &s.position, slack))
+        {
             for axis in 0..team.dim.axes() {
                 let (lo, hi, p, v) =
                     (team.workspace.min[axis], team.workspace.max[axis], s.position[axis], s.velocity[axis]);
-                let slack = FEASIBILITY_TOLERANCE * a;
                 if p < lo - slack || p > hi + slack {
                     let upper = p > hi;
                     let (depth, closing) = if upper { (p - hi, v) } else { (lo - p, -v) };

@@ -8,6 +8,7 @@ use crate::basis::BOUNDARY_ROWS;
 use crate::kkt::TeamKkt;
 use crate::linalg::{Accum, dot, gemm};
 use crate::problem::{FEASIBILITY_TOLERANCE, Problem};
+use crate::recovery::Recovery;
 
 /// How exactly a start must meet the boundary conditions to be returned
 /// without an update (normalised time units).
@@ -109,16 +110,17 @@ impl Engine {
         let margin = self.settings.margin;
         let (chord, broad) = (self.settings.chord, self.settings.broad_phase);
         let shrink = [t.robot.radius, t.robot.radius, t.robot.half_height].map(|r| margin * r);
+        let recovery = Recovery::of(problem);
         Ok(Prepared {
             beta,
             target,
             cold,
             constraint: Limits::new(problem, &self.grid, 1.0 + margin, shrink)
                 .with_rules(chord, broad)
-                .with_recovery(problem, &self.grid),
+                .with_recovery(problem, &recovery, &self.grid),
             verify: Limits::new(problem, &self.dense, 1.0 + self.settings.verify_margin, [0.0; 3])
                 .with_rules(chord, broad)
-                .with_recovery(problem, &self.dense),
+                .with_recovery(problem, &recovery, &self.dense),
             verify_start: Limits::new(
                 problem,
                 &self.dense_start,
@@ -126,7 +128,7 @@ impl Engine {
                 [-FEASIBILITY_TOLERANCE * t.separation().0; 3],
             )
             .with_rules(chord, broad)
-            .with_recovery(problem, &self.dense_start),
+            .with_recovery(problem, &recovery, &self.dense_start),
             boundary: b,
         })
     }

@@ -62,13 +62,16 @@ pub fn check(
         let age = (now_ns as f64 - f.origin_ns as f64) * 1e-6;
         return Err(Failure::Unverified(format!("it is {off:.4} m from the robots {age:.1} ms after its origin")));
     }
-    // Where a robot was measured in contact with a reported obstacle, the
-    // plan holds it to the contact's floor while it recovers.
+    // Where a robot was measured in contact with an obstacle of the
+    // snapshot the plan was made from, the plan holds it to the contact's
+    // floor while it recovers (a plan re-issued for a later snapshot is
+    // checked against that one's obstacles in full).
     let reported_at = (reported_ns as f64 - f.origin_ns as f64) * 1e-9;
-    let recovery = Recovery::of(&Problem {
-        obstacles: reported.iter().map(|o| Obstacle { position: o.at(-reported_at), ..*o }).collect(),
-        ..problem
-    });
+    let recovery = if reported_ns == f.origin_ns {
+        Recovery::of(&Problem { obstacles: reported.to_vec(), ..problem })
+    } else {
+        Recovery::default()
+    };
     // The rest of the plan, from now, against the reported obstacles.
     let steps = DENSE_FACTOR * team.samples;
     let dt = f.plan.horizon / (steps - 1) as f64;

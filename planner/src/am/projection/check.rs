@@ -186,8 +186,8 @@ impl Check<'_> {
 
 impl Scratch {
     /// Pushes `p` away from `q` (rows over the same instants) wherever
-    /// they come closer than their target: 1 (or the chord target) scaled
-    /// by `floor` at the first `until` instants, where a start violation
+    /// they come closer than their target: 1 (or the chord target) with
+    /// `floor` for 1 at the first `until` instants, where a start violation
     /// is recovered from ([`crate::recovery`]). Hands each instant's
     /// correction of `p` to `add(k, c)` and returns whether there was any.
     #[allow(clippy::too_many_arguments, reason = "one pair's rows, sizes and floor")]
@@ -209,8 +209,11 @@ impl Scratch {
         } else {
             self.target[..count].fill(1.0);
         }
+        // The floor takes the separation's place: `floor^2 + L^2 / 4` with
+        // the chord (the straight move between instants kept above it); a
+        // floor of 0 asks nothing.
         for t in &mut self.target[..until.min(count)] {
-            *t *= floor * floor;
+            *t = if floor > 0.0 { *t + floor * floor - 1.0 } else { 0.0 };
         }
         let mut any = false;
         for k in 0..count {

@@ -224,7 +224,7 @@ impl Projection {
                 let mut rows: [&mut [f64]; D] =
                     std::array::from_fn(|a| unsafe { corr.range(block_rows(a, n, &robots, count)) });
                 let sums = unsafe { sums.at(b) };
-                let (mut obstacle_sq, mut box_sq) = (0.0, 0.0);
+                let (mut obstacle_sq, mut box_sq, mut floor_sq) = (0.0, 0.0, 0.0);
                 for (r, i) in robots.clone().enumerate() {
                     let pi = robot_rows::<D>(pos, n, count, i);
                     for (m, sep) in limits.obstacle_sep.iter().enumerate() {
@@ -283,7 +283,12 @@ impl Projection {
                                 if !first {
                                     for a in 0..D {
                                         rows[a][r * count + k] += sign * c[a];
-                                        obstacle_sq += if sign > 0.0 { c[a] * c[a] } else { 0.0 };
+                                        // A pair's `||c||^2` once, an obstacle's with the obstacles.
+                                        let sq = if sign > 0.0 { c[a] * c[a] } else { 0.0 };
+                                        match f.against {
+                                            Against::Robot(_) => floor_sq += sq,
+                                            _ => obstacle_sq += sq,
+                                        }
                                     }
                                 }
                             },
@@ -324,6 +329,7 @@ impl Projection {
                     }
                 }
                 (sums.obstacle_sq, sums.box_sq) = (obstacle_sq, box_sq);
+                sums.pair_sq += floor_sq;
             }
         });
     }

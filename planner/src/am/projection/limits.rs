@@ -109,18 +109,27 @@ impl Limits {
         }
     }
 
-    /// The same limits with the floors of `problem`'s start violations at
-    /// `grid`'s instants ([`crate::recovery`]; none without any).
-    pub(crate) fn with_recovery(mut self, problem: &Problem, grid: &SampleGrid) -> Self {
-        let recovery = Recovery::of(problem);
+    /// The same limits with the floors of `recovery` (the start violations
+    /// of `problem`) at `grid`'s instants ([`crate::recovery`]; none
+    /// without any). A side of the box keeps this limit's inset from its
+    /// floor, as from the box.
+    pub(crate) fn with_recovery(mut self, problem: &Problem, recovery: &Recovery, grid: &SampleGrid) -> Self {
         if recovery.violations.is_empty() || recovery.until <= 0.0 {
             return self;
         }
         let until = grid.taus.iter().take_while(|tau| **tau * problem.team.horizon < recovery.until).count();
+        let inset = |axis: usize| self.lo[axis] - problem.team.workspace.min[axis];
         self.floors = recovery
             .violations
             .iter()
-            .map(|v| Floor { robot: v.robot, against: v.against, until, floor: v.floor })
+            .map(|v| {
+                let floor = match v.against {
+                    Against::Box { axis, upper: true } => v.floor - inset(axis),
+                    Against::Box { axis, upper: false } => v.floor + inset(axis),
+                    _ => v.floor,
+                };
+                Floor { robot: v.robot, against: v.against, until, floor }
+            })
             .collect();
         if recovery.violations.iter().any(|v| matches!(v.against, Against::Robot(_))) {
             self.pair_floors = vec![false; problem.team.robots];
@@ -133,8 +142,8 @@ impl Limits {
         self
     }
 
-    /// Whether robots `i` and `j` have a floor (and are checked by it, not
-    /// with the other pairs).
+    /// Whether robots `i` and `j` have a floor (and are checked against it
+    /// with the obstacles, skipped among the candidate pairs).
     #[inline(always)]
     pub(super) fn pair_has_floor(&self, i: usize, j: usize) -> bool {
         !self.pair_floors.is_empty()
