@@ -119,17 +119,7 @@ impl Recovery {
     /// The bounds `(lo, hi)` robot `i` stays within on `axis` `t` s after
     /// the start: `box_` unless it recovers from outside it.
     pub fn bounds(&self, i: usize, axis: usize, t: f64, box_: (f64, f64)) -> (f64, f64) {
-        let (mut lo, mut hi) = box_;
-        if t < self.until {
-            for v in self.violations.iter().filter(|v| v.robot == i) {
-                match v.against {
-                    Against::Box { axis: x, upper: false } if x == axis => lo = lo.min(v.floor),
-                    Against::Box { axis: x, upper: true } if x == axis => hi = hi.max(v.floor),
-                    _ => {}
-                }
-            }
-        }
-        (lo, hi)
+        if t < self.until { box_bounds(&self.violations, i, axis, box_).unwrap_or(box_) } else { box_ }
     }
 
     fn floor(&self, i: usize, against: Against, t: f64) -> f64 {
@@ -138,6 +128,25 @@ impl Recovery {
         }
         self.violations.iter().find(|v| v.robot == i && v.against == against).map_or(1.0, |v| v.floor.min(1.0))
     }
+}
+
+/// The box `box_` robot `i` stays within on `axis` while it recovers from
+/// outside one of its sides (`violations`' floors there), if it does.
+pub(crate) fn box_bounds(violations: &[Violation], i: usize, axis: usize, box_: (f64, f64)) -> Option<(f64, f64)> {
+    let mut out = None;
+    for v in violations.iter().filter(|v| v.robot == i) {
+        if let Against::Box { axis: x, upper } = v.against
+            && x == axis
+        {
+            let (lo, hi) = out.get_or_insert(box_);
+            if upper {
+                *hi = hi.max(v.floor);
+            } else {
+                *lo = lo.min(v.floor);
+            }
+        }
+    }
+    out
 }
 
 #[cfg(test)]

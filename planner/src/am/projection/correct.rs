@@ -270,7 +270,7 @@ impl Projection {
                         // The same correction in either robot's block: `+c` to
                         // the first, `-c` to the other robot of a pair.
                         let sign = if f.robot == i { 1.0 } else { -1.0 };
-                        let floor = (f.until, f.floor);
+                        let floor = (limits.floors_until, f.floor);
                         let hit = scratch.push_with_floor::<D>(
                             &p,
                             &q,
@@ -311,8 +311,8 @@ impl Projection {
                         let (lo, hi) = (limits.lo[a], limits.hi[a]);
                         let (sq, any) = match limits.box_floor(robots.start + r, a) {
                             None => clamp_row(row, p, lo, hi),
-                            Some((until, l, h)) => {
-                                let (head, tail) = row.split_at_mut(until.min(count));
+                            Some((l, h)) => {
+                                let (head, tail) = row.split_at_mut(limits.floors_until.min(count));
                                 let (first, rest) = p.split_at(head.len());
                                 let (s0, a0) = clamp_row(head, first, l, h);
                                 let (s1, a1) = clamp_row(tail, rest, lo, hi);

@@ -4,22 +4,7 @@
 use super::grid::SampleGrid;
 use crate::problem::Against;
 use crate::problem::Problem;
-use crate::recovery::Recovery;
-
-/// A start violation's floor on a grid ([`crate::recovery`]): what holds
-/// at its instants before `until` instead of the constraint.
-#[derive(Debug, Clone, Copy)]
-pub(super) struct Floor {
-    /// The robot (the lower index of a pair).
-    pub(super) robot: usize,
-    /// What it violated at the start.
-    pub(super) against: Against,
-    /// The instants `0..until` the floor holds at.
-    pub(super) until: usize,
-    /// The least scaled distance (a pair or an obstacle) or the coordinate
-    /// the robot stays within (a side of the box).
-    pub(super) floor: f64,
-}
+use crate::recovery::{Recovery, Violation, box_bounds};
 
 /// Sizes, box and obstacle tracks one projection checks against.
 #[derive(Debug, Clone)]
@@ -40,8 +25,11 @@ pub struct Limits {
     pub(super) chord: bool,
     /// Find the robot pairs to check by sweep-and-prune (large teams).
     pub(super) broad_phase: bool,
-    /// The floors of the start's violations (empty without any).
-    pub(super) floors: Vec<Floor>,
+    /// The start's violations with their floors on this grid (a side of
+    /// the box moved by its inset; empty without any).
+    pub(super) floors: Vec<Violation>,
+    /// The instants `0..floors_until` the floors hold at.
+    pub(super) floors_until: usize,
     /// Per robot, whether it is in a pair with a floor (empty without any).
     pub(super) pair_floors: Vec<bool>,
 }
@@ -105,6 +93,7 @@ impl Limits {
             chord: false,
             broad_phase: false,
             floors: Vec::new(),
+            floors_until: 0,
             pair_floors: Vec::new(),
         }
     }
@@ -117,7 +106,7 @@ impl Limits {
         if recovery.violations.is_empty() || recovery.until <= 0.0 {
             return self;
         }
-        let until = grid.taus.iter().take_while(|tau| **tau * problem.team.horizon < recovery.until).count();
+        self.floors_until = grid.taus.iter().take_while(|tau| **tau * problem.team.horizon < recovery.until).count();
         let inset = |axis: usize| self.lo[axis] - problem.team.workspace.min[axis];
         self.floors = recovery
             .violations
@@ -128,7 +117,7 @@ impl Limits {
                     Against::Box { axis, upper: false } => v.floor + inset(axis),
                     _ => v.floor,
                 };
-                Floor { robot: v.robot, against: v.against, until, floor }
+                Violation { floor, ..*v }
             })
             .collect();
         if recovery.violations.iter().any(|v| matches!(v.against, Against::Robot(_))) {
@@ -157,23 +146,10 @@ impl Limits {
         self.floors.iter().any(|f| f.robot == i && f.against == Against::Obstacle(m))
     }
 
-    /// Robot `i`'s box on `axis` at its first `until` instants, if it
-    /// recovers from outside the box there: `(until, lo, hi)`.
-    pub(super) fn box_floor(&self, i: usize, axis: usize) -> Option<(usize, f64, f64)> {
-        let mut out: Option<(usize, f64, f64)> = None;
-        for f in self.floors.iter().filter(|f| f.robot == i) {
-            if let Against::Box { axis: x, upper } = f.against
-                && x == axis
-            {
-                let (_, lo, hi) = out.get_or_insert((f.until, self.lo[axis], self.hi[axis]));
-                if upper {
-                    *hi = hi.max(f.floor);
-                } else {
-                    *lo = lo.min(f.floor);
-                }
-            }
-        }
-        out
+    /// Robot `i`'s box on `axis` at the first [`Self::floors_until`]
+    /// instants, if it recovers from outside the box there.
+    pub(super) fn box_floor(&self, i: usize, axis: usize) -> Option<(f64, f64)> {
+        box_bounds(&self.floors, i, axis, (self.lo[axis], self.hi[axis]))
     }
 
     /// The same limits checked with `chord` inflation (see [`Projection`])
