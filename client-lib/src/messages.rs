@@ -152,8 +152,8 @@ impl PlanStatus {
     }
 }
 
-/// Why a message is not a new plan: the snapshot was rejected (codes 1-13
-/// and 16-18), or the plan could not be made or verified (14, 15, 19-23).
+/// Why a message is not a new plan: the snapshot was rejected (codes 1-13,
+/// 16-18 and 25), or the plan could not be made or verified (14, 15, 19-23).
 /// On the wire it is a `u32` ([`JointTrajectory::reason`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Reason {
@@ -215,13 +215,17 @@ pub enum Reason {
     /// first of a pair) and moves it out within the team's
     /// `start_recovery_s` (docs/MESSAGES.md, "Starts in contact").
     Recovering = 24,
+    /// A robot moves towards a side of the box too fast to stop before it
+    /// within the team's `max_acceleration` (`reason_index`: the robot);
+    /// sent with `start_recovery_s = 0`, else `Recovering` (docs/MESSAGES.md).
+    CannotBrake = 25,
 }
 
 impl Reason {
     /// The reason with wire value `value`.
     pub fn from_wire(value: u32) -> Result<Self, MessageError> {
         use Reason::*;
-        const ALL: [Reason; 25] = [
+        const ALL: [Reason; 26] = [
             None,
             Version,
             Team,
@@ -247,17 +251,18 @@ impl Reason {
             Limits,
             WorldChanged,
             Recovering,
+            CannotBrake,
         ];
         ALL.get(value as usize).copied().ok_or(MessageError::Field("reason"))
     }
 
     /// Whether this reason rejects the snapshot: its task was not planned.
     /// Rejected by a header, clock, sequence or value check (1-7, 16-18) it
-    /// changed nothing; rejected for its task (8-13: overlaps, the
-    /// workspace, obstacles) its robots and obstacles are still the newest
-    /// world every followable answer is checked against.
+    /// changed nothing; rejected for its task (8-13 and 25: overlaps, the
+    /// workspace, obstacles, braking) its robots and obstacles are still the
+    /// newest world every followable answer is checked against.
     pub fn is_rejection(self) -> bool {
-        matches!(self as u32, 1..=13 | 16..=18)
+        matches!(self as u32, 1..=13 | 16..=18 | 25)
     }
 }
 
@@ -659,16 +664,18 @@ mod tests {
         for value in 0..4 {
             assert_eq!(PlanStatus::from_wire(value).map(|s| s as u32), Ok(value));
         }
-        for value in 0..25 {
+        for value in 0..26 {
             assert_eq!(Reason::from_wire(value).map(|r| r as u32), Ok(value));
         }
         assert_eq!(PlanStatus::from_wire(4), Err(MessageError::Field("status")));
         assert_eq!(Reason::from_wire(23), Ok(Reason::WorldChanged));
         assert_eq!(Reason::from_wire(24), Ok(Reason::Recovering));
-        assert_eq!(Reason::from_wire(25), Err(MessageError::Field("reason")));
+        assert_eq!(Reason::from_wire(25), Ok(Reason::CannotBrake));
+        assert_eq!(Reason::from_wire(26), Err(MessageError::Field("reason")));
         assert!(Reason::NonFinite.is_rejection() && Reason::Clock.is_rejection() && Reason::Implausible.is_rejection());
         assert!(!Reason::DeadlineMissed.is_rejection() && !Reason::StaleState.is_rejection());
         assert!(!Reason::WorldChanged.is_rejection() && !Reason::Recovering.is_rejection());
+        assert!(Reason::CannotBrake.is_rejection());
         assert!(PlanStatus::Held.followable() && PlanStatus::Stopping.followable() && !PlanStatus::NoPlan.followable());
     }
 

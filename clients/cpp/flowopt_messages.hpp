@@ -72,13 +72,14 @@ enum class Reason : std::uint32_t {
     Limits = 22,
     WorldChanged = 23,
     Recovering = 24,
+    CannotBrake = 25,
 };
 
 /// Whether `reason` rejects the answered snapshot: its task was not planned
-/// (for 1-7 and 16-18 it changed nothing; for 8-13 its robots and obstacles
+/// (for 1-7 and 16-18 it changed nothing; for 8-13 and 25 its robots and obstacles
 /// are still the world the daemon checks every followable answer against).
 constexpr bool is_rejection(std::uint32_t reason) {
-    return (reason >= 1 && reason <= 13) || (reason >= 16 && reason <= 18);
+    return (reason >= 1 && reason <= 13) || (reason >= 16 && reason <= 18) || reason == 25;
 }
 
 /// Whether a message with wire status `status` carries a verified trajectory.

@@ -134,7 +134,10 @@ pub struct TeamConfig {
     /// The robots' top speed (m/s): published plans stay within it.
     #[serde(default = "default_max_speed")]
     pub max_speed: f64,
-    /// The robots' top acceleration (m/s^2): published plans stay within it.
+    /// The robots' top acceleration (m/s^2): published plans stay within
+    /// it, and a robot moving towards a side of the box faster than any
+    /// plan within it stops before the side is recovered or rejected
+    /// (`CannotBrake`; [`Team::max_acceleration`]).
     #[serde(default = "default_max_acceleration")]
     pub max_acceleration: f64,
     /// A snapshot whose robot moves faster than this many times
@@ -164,12 +167,13 @@ pub struct TeamConfig {
     #[serde(default = "default_obstacle_prediction_s")]
     pub obstacle_prediction_s: f64,
     /// Seconds a robot measured touching another robot or an obstacle, or
-    /// outside the box (by at most half a separation), has to clear it in
+    /// outside the box (by at most half a separation), or moving towards a
+    /// side faster than it can stop before it, has to clear it in
     /// the plans made from that snapshot: the team goes on being planned,
     /// the contact held to what the start allows until then
     /// ([`Team::start_recovery`]). 0: such snapshots' tasks are rejected
-    /// (`StartsOverlap`, `StartInObstacle`, `StartOutsideWorkspace`) and
-    /// the team stops.
+    /// (`StartsOverlap`, `StartInObstacle`, `StartOutsideWorkspace`,
+    /// `CannotBrake`) and the team stops.
     #[serde(default = "default_start_recovery_s")]
     pub start_recovery_s: f64,
     /// How cold plans are made (`[team.planner]`): the method (`auto` by
@@ -301,6 +305,7 @@ impl TeamConfig {
         Ok(Team {
             obstacle_prediction: Some(self.obstacle_prediction_s),
             start_recovery: (self.start_recovery_s > 0.0).then_some(self.start_recovery_s),
+            max_acceleration: Some(self.max_acceleration),
             ..team
         })
     }

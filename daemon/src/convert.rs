@@ -151,6 +151,7 @@ fn is_task(error: &ProblemError) -> bool {
             | E::StartInObstacle { .. }
             | E::GoalInObstacle { .. }
             | E::StartOutsideWorkspace(_)
+            | E::CannotBrake { .. }
             | E::GoalOutsideWorkspace(_)
     )
 }
@@ -174,6 +175,7 @@ pub fn rejection_of(error: &ProblemError) -> Rejection {
         E::StartInObstacle { robot, .. } => Rejection::at(Reason::StartInObstacle, robot),
         E::GoalInObstacle { robot, .. } => Rejection::at(Reason::GoalInObstacle, robot),
         E::StartOutsideWorkspace(i) => Rejection::at(Reason::StartOutsideWorkspace, i),
+        E::CannotBrake { robot, .. } => Rejection::at(Reason::CannotBrake, robot),
         E::GoalOutsideWorkspace(i) => Rejection::at(Reason::GoalOutsideWorkspace, i),
         E::WrongCount { .. } | E::NoRobots => Rejection::new(Reason::RobotCount),
         E::BadDimension(_) => Rejection::new(Reason::Dimension),
@@ -284,6 +286,25 @@ mod tests {
         );
         let (_, clear) = valid();
         assert_eq!(measured(&clear, &recovering, PLAUSIBLE).unwrap().recovering, None);
+    }
+
+    #[test]
+    fn a_robot_that_cannot_brake_inside_the_box_is_recovered_or_rejected_as_cannot_brake() {
+        let (team, mut s) = valid();
+        let braking = Team { max_acceleration: Some(3.0), ..team.clone() };
+        let recovering = Team { start_recovery: Some(1.0), ..braking.clone() };
+        // Robot 3, 2 cm inside the box's left side, moving at it at 1 m/s.
+        s.robot[3].position = [-0.98, 0.0, 0.0];
+        s.robot[3].velocity = [-1.0, 0.0, 0.0];
+        let m = measured(&s, &recovering, PLAUSIBLE).unwrap();
+        assert_eq!((m.task, m.recovering), (Ok(()), Some(3)));
+        let strict = measured(&s, &braking, PLAUSIBLE).unwrap();
+        assert_eq!((strict.task, strict.recovering), (Err(Rejection::at(Reason::CannotBrake, 3)), None));
+        assert!(Reason::CannotBrake.is_rejection());
+        // Without a known acceleration, or moving inwards, it is a start like any other.
+        assert_eq!(measured(&s, &team, PLAUSIBLE).unwrap().task, Ok(()));
+        s.robot[3].velocity = [1.0, 0.0, 0.0];
+        assert_eq!(measured(&s, &braking, PLAUSIBLE).unwrap().task, Ok(()));
     }
 
     #[test]

@@ -22,6 +22,10 @@ use thiserror::Error;
 /// acceleration at the start and at the end.
 pub const BOUNDARY_ROWS: usize = 6;
 
+/// Dense re-sampling density of the verification ([`crate::metrics`]):
+/// this many instants per optimiser sample.
+pub const DENSE_FACTOR: usize = 4;
+
 /// Why a basis could not be built.
 #[derive(Debug, Clone, PartialEq, Error)]
 pub enum BasisError {

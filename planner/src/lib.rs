@@ -2,6 +2,8 @@
 //!
 //! - [`basis`]: the Bernstein basis trajectories are written in;
 //! - [`problem`]: teams, instances, validation;
+//! - [`braking`]: how far a robot moving towards a side of the box must
+//!   go at the least (the certificate of a start that cannot stay inside);
 //! - [`scenario`]: seeded random instances, antipodal swaps, scenario files;
 //! - [`scenes`]: scene families (random, crowd, swap, crossing, obstacle
 //!   field, formation) at any team size, at constant density;
@@ -27,6 +29,7 @@
 
 pub mod am;
 pub mod basis;
+pub mod braking;
 pub mod crew;
 pub mod kkt;
 pub mod linalg;
@@ -41,5 +44,6 @@ pub mod reference;
 pub mod route;
 pub mod scenario;
 pub mod scenes;
+mod start_violation;
 pub mod stopping;
 pub mod working_point;

@@ -27,8 +27,7 @@ use crate::plan::JointPlan;
 use crate::problem::{FEASIBILITY_TOLERANCE, Problem, scaled_norm};
 use crate::recovery::Recovery;
 
-/// Dense re-sampling density: this many instants per optimiser sample.
-pub const DENSE_FACTOR: usize = 4;
+pub use crate::basis::DENSE_FACTOR;
 
 /// Largest boundary mismatch (m, m/s, m/s^2) that counts as met.
 pub const BOUNDARY_TOLERANCE: f64 = 1e-6;

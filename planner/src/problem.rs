@@ -26,7 +26,9 @@ use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 
 use crate::basis::{BOUNDARY_ROWS, Basis, BasisError};
+use crate::braking::least_excursion;
 pub use crate::problem_error::{Field, ProblemError};
+pub use crate::start_violation::{Against, RECOVERABLE_DEPTH, StartViolation};
 
 /// Relative tolerance on every clearance: a plan is feasible when every
 /// scaled distance is at least `1 - FEASIBILITY_TOLERANCE` (1% of the
@@ -175,6 +177,13 @@ pub struct Team {
     /// [`crate::recovery`]. `None`: such starts are rejected.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub start_recovery: Option<f64>,
+    /// The robots' largest acceleration (m/s^2), if known: a robot inside
+    /// the box moving towards a side faster than it can stop before it
+    /// ([`Against::Braking`]) is then rejected ([`ProblemError::CannotBrake`])
+    /// or, with [`Team::start_recovery`], recovered from like a start
+    /// outside the box. `None`: no such check.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub max_acceleration: Option<f64>,
 }
 
 impl Team {
@@ -206,6 +215,7 @@ impl Team {
             samples: Self::DEFAULT_SAMPLES,
             obstacle_prediction: None,
             start_recovery: None,
+            max_acceleration: None,
         }
     }
 
@@ -282,6 +292,9 @@ impl Team {
         if let Some(t) = self.start_recovery {
             positive(t, Field::StartRecovery, 0)?;
         }
+        if let Some(a) = self.max_acceleration {
+            positive(a, Field::MaxAcceleration, 0)?;
+        }
         for a in 0..self.dim.axes() {
             finite(self.workspace.min[a], Field::Workspace, 0)?;
             finite(self.workspace.max[a], Field::Workspace, 1)?;
@@ -323,62 +336,9 @@ pub struct Problem {
     pub obstacles: Vec<Obstacle>,
 }
 
-/// The deepest overlap of two robots' starts, or start outside the box, a
-/// team with [`Team::start_recovery`] plans from: half a separation
-/// (scaled distance 0.5; half the horizontal separation outside the box).
-/// Robots cannot be that deep in each other, nor that far out of the box,
-/// without a wrong measurement. An obstacle (a walker bumping a robot,
-/// walking on through it) may be reported anywhere.
-pub const RECOVERABLE_DEPTH: f64 = 0.5;
-
-/// What a measured start violates.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Against {
-    /// Another robot (a higher index).
-    Robot(usize),
-    /// An obstacle.
-    Obstacle(usize),
-    /// A side of the box on an axis (`upper`: the maximum).
-    Box {
-        /// The axis.
-        axis: usize,
-        /// Whether it is the upper side.
-        upper: bool,
-    },
-}
-
-/// A constraint a measured start violates beyond [`FEASIBILITY_TOLERANCE`]
-/// ([`Problem::start_violations`]).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct StartViolation {
-    /// The robot (the lower index of a pair).
-    pub robot: usize,
-    /// What it violates.
-    pub against: Against,
-    /// How deep: `1 - d0` for a pair or an obstacle at scaled distance
-    /// `d0`; the excess over the horizontal separation for the box.
-    pub depth: f64,
-    /// How fast it deepens: the rate the scaled distance shrinks at, or
-    /// the outward speed (m/s) for the box; 0 when it does not.
-    pub closing: f64,
-}
-
-impl StartViolation {
-    /// Whether a team with [`Team::start_recovery`] plans from it: an
-    /// obstacle at any depth, a robot or the box to [`RECOVERABLE_DEPTH`].
-    pub fn recoverable(&self) -> bool {
-        matches!(self.against, Against::Obstacle(_)) || self.depth <= RECOVERABLE_DEPTH
-    }
-
-    /// Its validation error.
-    pub fn error(&self) -> ProblemError {
-        match self.against {
-            Against::Robot(j) => ProblemError::StartsOverlap { i: self.robot, j, scaled: 1.0 - self.depth },
-            Against::Obstacle(m) => ProblemError::StartInObstacle { robot: self.robot, obstacle: m },
-            Against::Box { .. } => ProblemError::StartOutsideWorkspace(self.robot),
-        }
-    }
-}
+/// Starts farther from a side than this many physical stops
+/// (`v^2 / 2a`) are not checked against [`crate::braking`]'s bound.
+const SCREEN: f64 = 8.0;
 
 /// The depth and closing rate of a body at offset `d` from another
 /// (scaled by `(a, a, b)`), at relative velocity `v`, if it is closer than
@@ -432,7 +392,9 @@ impl Problem {
     }
 
     /// Every constraint the starts violate beyond [`FEASIBILITY_TOLERANCE`]:
-    /// the box robot by robot, robot pairs, then obstacles. Allocates only
+    /// the box robot by robot (outside it, then, with
+    /// [`Team::max_acceleration`], unable to stop inside it), robot pairs,
+    /// then obstacles. Allocates only
     /// when there is one.
     pub fn start_violations(&self) -> Vec<StartViolation> {
         let team = &self.team;
@@ -450,6 +412,33 @@ impl Problem {
                     let (depth, closing) = if upper { (p - hi, v) } else { (lo - p, -v) };
                     let against = Against::Box { axis, upper };
                     out.push(StartViolation { robot: i, against, depth: depth / a, closing: closing.max(0.0) });
+                }
+            }
+        }
+        if let Some(max_acceleration) = team.max_acceleration {
+            for (i, s) in
+                self.starts.iter().enumerate().filter(|(_, s)| team.workspace.contains(team.dim, &s.position, slack))
+            {
+                for axis in 0..team.dim.axes() {
+                    let (v, acc) = (s.velocity[axis], s.acceleration[axis]);
+                    let (upper, room) = if v > 0.0 {
+                        (true, team.workspace.max[axis] - s.position[axis])
+                    } else {
+                        (false, s.position[axis] - team.workspace.min[axis])
+                    };
+                    // Screened by a multiple of the physical stop (the plan's
+                    // bound is 1.2-3.9 times it) before the table is read.
+                    if v == 0.0 || v * v / (2.0 * max_acceleration) * SCREEN <= room {
+                        continue;
+                    }
+                    let towards = if upper { acc } else { -acc };
+                    let least =
+                        least_excursion(team.degree, team.samples, team.horizon, max_acceleration, towards, v.abs());
+                    let overshoot = least - room;
+                    if overshoot > slack {
+                        let against = Against::Braking { axis, upper };
+                        out.push(StartViolation { robot: i, against, depth: overshoot / a, closing: v.abs() });
+                    }
                 }
             }
         }
@@ -508,7 +497,7 @@ impl Problem {
             }
         }
         if let Some(v) = self.start_violations().iter().find(|v| team.start_recovery.is_none() || !v.recoverable()) {
-            return Err(v.error());
+            return Err(v.error(team.separation().0));
         }
         for (i, g) in self.goals.iter().enumerate() {
             if !team.workspace.contains(dim, g, 0.0) {

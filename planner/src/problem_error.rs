@@ -33,6 +33,8 @@ pub enum Field {
     Workspace,
     /// The start recovery time.
     StartRecovery,
+    /// The robots' largest acceleration.
+    MaxAcceleration,
 }
 
 /// Why a problem is not plannable.
@@ -115,6 +117,26 @@ pub enum ProblemError {
     /// A start lies outside the workspace box (beyond the tolerance).
     #[error("ProblemError::StartOutsideWorkspace: robot {0} starts outside the workspace")]
     StartOutsideWorkspace(usize),
+    /// A robot inside the box moves towards a side faster than any plan
+    /// it can follow (acceleration within the team's largest,
+    /// [`crate::problem::Team::max_acceleration`]) stops before it: every
+    /// such plan leaves the box ([`crate::braking`]).
+    #[error(
+        "ProblemError::CannotBrake: robot {robot} moving {speed:.3} m/s towards the box's {} side on axis {axis} cannot stop inside it: {overshoot:.4} m out at the least within the largest acceleration",
+        if *upper { "upper" } else { "lower" }
+    )]
+    CannotBrake {
+        /// Robot index.
+        robot: usize,
+        /// The axis.
+        axis: usize,
+        /// Whether the side is the upper one.
+        upper: bool,
+        /// Its speed towards the side (m/s).
+        speed: f64,
+        /// How far past the side its least excursion ends (m).
+        overshoot: f64,
+    },
     /// A goal lies outside the workspace box.
     #[error("ProblemError::GoalOutsideWorkspace: robot {0}'s goal is outside the workspace")]
     GoalOutsideWorkspace(usize),

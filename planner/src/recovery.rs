@@ -18,7 +18,10 @@
 //!   `(1 - RECOVERY_SLACK) d0 - u T_r / 4` (what braking within half the
 //!   recovery time `T_r` allows), never below 0;
 //! - a robot `e` outside the box on an axis, moving outwards at `u`, keeps
-//!   within `e (1 + RECOVERY_SLACK) + u T_r / 4` of that side.
+//!   within `e (1 + RECOVERY_SLACK) + u T_r / 4` of that side;
+//! - a robot inside the box moving towards a side faster than any plan it
+//!   can follow stops before it ([`crate::braking`]) keeps within
+//!   `1 + RECOVERY_SLACK` times that plan's least excursion of where it is.
 //!
 //! Every other constraint holds in full from the first instant. The
 //! optimiser's projection, its dense verification ([`crate::am::Limits`])
@@ -96,6 +99,14 @@ impl Recovery {
                         let out = RECOVERY_SLACK * v.depth * team.separation().0 + v.closing * quarter;
                         if upper { p + out } else { p - out }
                     }
+                    Against::Braking { axis, upper } => {
+                        // Its least excursion (the room to the side and the
+                        // overshoot past it), with the slack, from where it is.
+                        let p = problem.starts[v.robot].position[axis];
+                        let room = if upper { team.workspace.max[axis] - p } else { p - team.workspace.min[axis] };
+                        let out = (1.0 + RECOVERY_SLACK) * (room + v.depth * team.separation().0);
+                        if upper { p + out } else { p - out }
+                    }
                     _ => ((1.0 - RECOVERY_SLACK) * (1.0 - v.depth) - v.closing * quarter).max(0.0),
                 };
                 Violation { robot: v.robot, against: v.against, floor }
@@ -135,7 +146,7 @@ impl Recovery {
 pub(crate) fn box_bounds(violations: &[Violation], i: usize, axis: usize, box_: (f64, f64)) -> Option<(f64, f64)> {
     let mut out = None;
     for v in violations.iter().filter(|v| v.robot == i) {
-        if let Against::Box { axis: x, upper } = v.against
+        if let Some((x, upper)) = v.against.side()
             && x == axis
         {
             let (lo, hi) = out.get_or_insert(box_);
@@ -211,6 +222,51 @@ mod tests {
             assert!(x(t) <= 1.0 + FEASIBILITY_TOLERANCE * 0.2, "x({t}) = {}", x(t));
         }
         assert!(Metrics::measure(&strict, &plan).workspace_excess > 0.01, "it did start outside");
+    }
+
+    #[test]
+    fn a_robot_that_cannot_brake_inside_the_box_brakes_past_its_side_and_comes_back() {
+        // Robot 1, 5 cm from the right side at 1 m/s outwards: at 3 m/s^2
+        // its shortest stop is 16.7 cm, a plan's (from zero acceleration)
+        // longer.
+        let moving =
+            StartState { velocity: Vector3::new(1.0, 0.0, 0.0), ..StartState::at_rest(Vector3::new(0.95, -0.5, 0.0)) };
+        let problem = four(|p| {
+            p.team.max_acceleration = Some(3.0);
+            p.starts[1] = moving;
+        });
+        let v = Recovery::of(&problem).violations;
+        assert_eq!(
+            v.iter().map(|v| (v.robot, v.against)).collect::<Vec<_>>(),
+            [(1, Against::Braking { axis: 0, upper: true })]
+        );
+        let least = crate::braking::least_excursion(10, 50, 5.0, 3.0, 0.0, 1.0);
+        assert!(least > 1.0 / 6.0);
+        assert!((v[0].floor - (0.95 + 1.1 * least)).abs() < 1e-12, "its stop with the slack: {}", v[0].floor);
+        let strict = Problem { team: Team { start_recovery: None, ..problem.team.clone() }, ..problem.clone() };
+        match strict.validate() {
+            Err(ProblemError::CannotBrake { robot: 1, axis: 0, upper: true, speed, overshoot }) => {
+                assert_eq!(speed, 1.0);
+                assert!((overshoot - (least - 0.05)).abs() < 1e-9, "{overshoot}");
+            }
+            other => panic!("{other:?}"),
+        }
+        // Slower, or without a known acceleration, it is a start like any other.
+        let slow = four(|p| {
+            p.team.max_acceleration = Some(3.0);
+            p.starts[1] = StartState { velocity: Vector3::new(0.3, 0.0, 0.0), ..moving };
+        });
+        assert!(Recovery::of(&slow).violations.is_empty(), "0.3 m/s turns within 2.5 cm");
+        let unknown = Problem { team: Team { max_acceleration: None, ..strict.team.clone() }, ..strict.clone() };
+        assert_eq!(unknown.validate(), Ok(()));
+        let plan = planned(&problem);
+        let x = |t: f64| plan.at(t)[1].position.x;
+        assert!((0..=10).any(|k| x(k as f64 * 0.1) > 1.0 + 0.05), "it does leave the box");
+        for k in 0..=50 {
+            let t = k as f64 * 0.1;
+            let bound = if t < 1.0 { v[0].floor } else { 1.0 + FEASIBILITY_TOLERANCE * 0.2 };
+            assert!(x(t) <= bound, "x({t}) = {}", x(t));
+        }
     }
 
     #[test]

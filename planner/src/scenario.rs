@@ -389,6 +389,7 @@ pub fn file_team(
         samples,
         obstacle_prediction: None,
         start_recovery: None,
+        max_acceleration: None,
     })
 }
 

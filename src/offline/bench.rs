@@ -16,6 +16,7 @@ use flowopt_planner::am::Budget;
 use crate::offline::harness::{Harness, Record, StageMs, plan_distance};
 use crate::offline::instances::InstanceArgs;
 use crate::offline::planning_args::PlanningArgs;
+use crate::offline::solve::infeasible_json;
 use crate::offline::stats::{IterationStats, mean, quantile};
 
 /// Benchmark a planning method on seeded scenes of a family.
@@ -65,9 +66,15 @@ pub struct Summary {
     pub problems: u64,
     /// First seed.
     pub seed: u64,
-    /// Fraction of instances whose plan passed the success verdict.
+    /// Instances certified infeasible before planning (a robot that cannot
+    /// brake inside the box: `--max-acceleration`); not planned.
+    pub certified_infeasible: u64,
+    /// The longest certification (ms; 0 without any).
+    pub certify_max_ms: f64,
+    /// Fraction of the planned instances (all but the certified
+    /// infeasible ones) whose plan passed the success verdict.
     pub success_rate: f64,
-    /// Median planning time (ms), all instances.
+    /// Median planning time (ms), planned instances.
     pub median_ms: f64,
     /// 95th-percentile planning time (ms), all instances.
     pub p95_ms: f64,
@@ -117,12 +124,22 @@ pub fn run(args: BenchArgs) -> Result<()> {
     let started = Instant::now();
     let mut records = Vec::with_capacity(args.problems as usize);
     let mut first = None;
+    let mut certify_ms = Vec::new();
     for index in 0..args.problems {
         let (problem, params) = args.instance.instance(index)?;
         if index == 0 {
             first = Some((problem.team.clone(), problem.obstacles.len(), params));
         }
         let seed = args.instance.seed + index;
+        let checked = Instant::now();
+        if let Some(why) = InstanceArgs::certified_infeasible(&problem) {
+            certify_ms.push(checked.elapsed().as_secs_f64() * 1e3);
+            if let Some(file) = out.as_mut() {
+                writeln!(file, "{}", serde_json::json!({ "seed": seed, "infeasible": infeasible_json(&why) }))?;
+            }
+            progress.inc(1);
+            continue;
+        }
         let record = harness.run(method, &problem, seed)?;
         if args.diversity > 1 && matches!(method, Method::Flowopt | Method::FlowNoInit) {
             let mut plans = Vec::new();
@@ -166,6 +183,8 @@ pub fn run(args: BenchArgs) -> Result<()> {
         scene,
         problems: args.problems,
         seed: args.instance.seed,
+        certified_infeasible: certify_ms.len() as u64,
+        certify_max_ms: certify_ms.iter().copied().fold(0.0, f64::max),
         success_rate: successes.len() as f64 / records.len().max(1) as f64,
         median_ms: quantile(&times, 0.5),
         p95_ms: quantile(&times, 0.95),
@@ -195,7 +214,13 @@ pub fn run(args: BenchArgs) -> Result<()> {
             summary.seed + summary.problems,
             started.elapsed().as_secs_f64()
         );
-        println!("success rate     {:.1}%", 100.0 * summary.success_rate);
+        println!(
+            "success rate     {:.1}% of {} planned ({} certified infeasible, each within {:.3} ms)",
+            100.0 * summary.success_rate,
+            records.len(),
+            summary.certified_infeasible,
+            summary.certify_max_ms
+        );
         println!("time             median {:.2} ms, p95 {:.2} ms", summary.median_ms, summary.p95_ms);
         println!("iterations       mean {:.1}, median {}", summary.mean_iterations, summary.median_iterations);
         println!(

@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
 use clap::{Args, ValueEnum};
-use flowopt_planner::problem::{Dim, Problem};
+use flowopt_planner::problem::{Dim, Problem, ProblemError};
 use flowopt_planner::scenario::ScenarioFile;
 use flowopt_planner::scenes::{Family, Scene, SceneParams};
 
@@ -81,6 +81,11 @@ pub struct InstanceArgs {
     /// Random and crowd families: largest random start speed (m/s); 0 plans from rest.
     #[arg(long, default_value_t = 0.0)]
     pub start_speed: f64,
+    /// The robots' largest acceleration (m/s^2; 0: unknown): a robot moving
+    /// towards a side of the box faster than it can stop before it makes
+    /// the instance certified infeasible (`CannotBrake`).
+    #[arg(long, default_value_t = 3.0)]
+    pub max_acceleration: f64,
     /// Seed of the (first) instance; instance i uses seed + i.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
@@ -103,14 +108,34 @@ impl InstanceArgs {
     /// Instance number `index` (a file ignores it) and, for a generated
     /// scene, what it was made of.
     pub fn instance(&self, index: u64) -> Result<(Problem, Option<SceneParams>)> {
-        if let Some(path) = &self.scenario_file {
-            return Ok((load_scenario(path)?, None));
+        let (mut problem, params) = match &self.scenario_file {
+            Some(path) => (load_scenario(path)?, None),
+            None => {
+                let scene = self.scene(index);
+                let (problem, params) = scene.generate().with_context(|| {
+                    format!("generating the {} scene with seed {}", scene.family.name(), scene.seed)
+                })?;
+                (problem, Some(params))
+            }
+        };
+        problem.team.max_acceleration = (self.max_acceleration > 0.0).then_some(self.max_acceleration);
+        if let Some(a) = problem.team.max_acceleration {
+            // The braking bound for this team shape, once (about a second;
+            // a start-up cost like an engine's factorisations), so that no
+            // instance's check waits for it.
+            let t = &problem.team;
+            flowopt_planner::braking::prepare(t.degree, t.samples, t.horizon, a);
         }
-        let scene = self.scene(index);
-        let (problem, params) = scene
-            .generate()
-            .with_context(|| format!("generating the {} scene with seed {}", scene.family.name(), scene.seed))?;
-        Ok((problem, Some(params)))
+        Ok((problem, params))
+    }
+
+    /// Why `problem` is certified infeasible before any planning (a robot
+    /// that cannot brake inside the box), if it is.
+    pub fn certified_infeasible(problem: &Problem) -> Option<ProblemError> {
+        match problem.validate() {
+            Err(e @ ProblemError::CannotBrake { .. }) => Some(e),
+            _ => None,
+        }
     }
 }
 
@@ -123,4 +148,41 @@ pub fn load_scenario(path: &Path) -> Result<Problem> {
         ScenarioFile::from_toml(&text)
     };
     problem.with_context(|| format!("scenario {}", path.display()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn moving(max_acceleration: f64) -> InstanceArgs {
+        InstanceArgs {
+            family: FamilyArg::Random,
+            robots: 16,
+            dim: DimArg::Two,
+            obstacles: 0,
+            obstacle_speed: 0.0,
+            start_speed: 1.0,
+            max_acceleration,
+            seed: 900,
+            scenario_file: None,
+        }
+    }
+
+    #[test]
+    fn a_start_that_cannot_brake_is_certified_with_the_robot_and_the_side_unless_the_limit_is_unknown() {
+        // Seed 900 at 1 m/s: robot 5, 54 mm inside the lower y side, moves at it at 0.79 m/s.
+        let (problem, _) = moving(3.0).instance(0).unwrap();
+        match InstanceArgs::certified_infeasible(&problem) {
+            Some(ProblemError::CannotBrake { robot: 5, axis: 1, upper: false, speed, overshoot }) => {
+                assert!((speed - 0.79).abs() < 0.01 && overshoot > 0.05, "{speed} {overshoot}");
+            }
+            other => panic!("{other:?}"),
+        }
+        let (unknown, _) = moving(0.0).instance(0).unwrap();
+        assert_eq!(unknown.team.max_acceleration, None);
+        assert!(InstanceArgs::certified_infeasible(&unknown).is_none());
+        // From rest nothing is certified.
+        let rest = InstanceArgs { start_speed: 0.0, ..moving(3.0) };
+        assert!(InstanceArgs::certified_infeasible(&rest.instance(0).unwrap().0).is_none());
+    }
 }

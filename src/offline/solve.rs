@@ -6,7 +6,7 @@ use anyhow::{Context, Result, bail};
 use clap::Args;
 use flowopt_client::pieces::{DEFAULT_PIECE_S, Pieces};
 use flowopt_planner::plan::JointPlan;
-use flowopt_planner::problem::Problem;
+use flowopt_planner::problem::{Problem, ProblemError};
 
 use crate::offline::harness::Harness;
 use crate::offline::instances::InstanceArgs;
@@ -38,6 +38,17 @@ pub fn run(args: SolveArgs) -> Result<()> {
     let (problem, scene) = args.instance.instance(0)?;
     let settings = args.planning.settings()?;
     let method = settings.method;
+    if let Some(why) = InstanceArgs::certified_infeasible(&problem) {
+        if args.json {
+            println!(
+                "{}",
+                serde_json::json!({ "method": method, "scene": scene, "infeasible": infeasible_json(&why) })
+            );
+        } else {
+            println!("certified infeasible: {why}");
+        }
+        return Ok(());
+    }
     let mut harness = Harness::new(settings, args.no_study);
     let record = harness.run(method, &problem, args.instance.seed)?;
     let crazyflie = match &args.crazyflie {
@@ -63,6 +74,19 @@ pub fn run(args: SolveArgs) -> Result<()> {
         }
     }
     Ok(())
+}
+
+/// A certified infeasibility as `solve --json` and the bench's
+/// per-instance lines give it: the reason's wire name, the robot, and the
+/// constraint in words.
+pub fn infeasible_json(why: &ProblemError) -> serde_json::Value {
+    match *why {
+        ProblemError::CannotBrake { robot, axis, upper, speed, overshoot } => serde_json::json!({
+            "reason": "CannotBrake", "robot": robot, "axis": axis, "upper": upper,
+            "speed_m_s": speed, "overshoot_m": overshoot, "message": why.to_string(),
+        }),
+        _ => serde_json::json!({ "message": why.to_string() }),
+    }
 }
 
 /// Writes every robot's plan `xi` of `problem` as Crazyflie pieces in

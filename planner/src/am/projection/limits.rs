@@ -112,10 +112,10 @@ impl Limits {
             .violations
             .iter()
             .map(|v| {
-                let floor = match v.against {
-                    Against::Box { axis, upper: true } => v.floor - inset(axis),
-                    Against::Box { axis, upper: false } => v.floor + inset(axis),
-                    _ => v.floor,
+                let floor = match v.against.side() {
+                    Some((axis, true)) => v.floor - inset(axis),
+                    Some((axis, false)) => v.floor + inset(axis),
+                    None => v.floor,
                 };
                 Violation { floor, ..*v }
             })

@@ -1,0 +1,180 @@
+//! How far a robot moving towards a side of the box goes before it can
+//! turn back, at the least, under any plan it can follow: the certificate
+//! behind [`crate::problem::Against::Braking`].
+//!
+//! Two lower bounds, the larger taken:
+//!
+//! - the physical one, `v^2 / 2a`: constant braking at the largest
+//!   acceleration `a`, for any trajectory and any start acceleration;
+//! - the plan's: a plan is one polynomial of the team's degree over its
+//!   horizon, and from a start at zero acceleration it cannot brake at
+//!   once. The least excursion of such a polynomial from a start at speed
+//!   `v`, its acceleration within `a` at the dense verification instants,
+//!   is a linear program over its coefficients. Relaxed to be the same for
+//!   every start and goal (only the start's position, velocity and zero
+//!   acceleration are fixed; every later coefficient is free; only the
+//!   instants of the first [`CHECKED_SHARE`] of the horizon count), it
+//!   depends on the speed alone: it is solved per team shape on a grid of
+//!   speeds ([`SPEED_STEP`]; each on first use, or all by [`prepare`]) and
+//!   read at the grid speed at or below `v` (the excursion grows with the
+//!   speed; a test checks it). Solved
+//!   exactly, the relaxation can only be smaller than the true least
+//!   excursion, so a robot whose room to the side is less than this (by
+//!   more than the box's tolerance) leaves the box under every plan of the
+//!   team's form that keeps its acceleration (1.2-3.9 times the physical
+//!   bound at 0.05-1.5 m/s for the default team at 3 m/s^2).
+//!
+//! ```
+//! use flowopt_planner::braking::least_excursion;
+//!
+//! // Degree 10, 50 samples, 5 s, 3 m/s^2: at 1 m/s at least the physical
+//! // 1/6 m, and more for a polynomial that starts at zero acceleration.
+//! let e = least_excursion(10, 50, 5.0, 3.0, 0.0, 1.0);
+//! assert!(e > 1.0 / 6.0 && e < 0.25, "{e}");
+//! ```
+
+use std::sync::Mutex;
+
+use microlp::{ComparisonOp, OptimizationDirection, Problem as Lp};
+
+use crate::basis::{BOUNDARY_ROWS, DENSE_FACTOR, bernstein_row};
+
+/// Spacing of the speeds the plan's bound is solved at (m/s).
+pub const SPEED_STEP: f64 = 0.02;
+
+/// The fastest speed the plan's bound is solved at (m/s); faster starts get
+/// the physical bound alone (a snapshot's robots are refused beyond twice
+/// the robots' top speed, 3 m/s by default).
+pub const TABLE_TOP_SPEED: f64 = 3.0;
+
+/// The share of the horizon whose dense instants the plan's bound checks.
+pub const CHECKED_SHARE: f64 = 0.4;
+
+/// The least excursion (m) towards a side of a robot starting at `speed`
+/// (m/s) towards it with acceleration `start_acceleration` along it (m/s^2,
+/// positive towards it), for plans of `degree` over `horizon` s with
+/// `samples` constraint samples and robots of largest acceleration
+/// `max_acceleration` (m/s^2): the larger of the two lower bounds of the
+/// module's doc (the plan's only for a start at zero acceleration).
+pub fn least_excursion(
+    degree: usize,
+    samples: usize,
+    horizon: f64,
+    max_acceleration: f64,
+    start_acceleration: f64,
+    speed: f64,
+) -> f64 {
+    if speed <= 0.0 {
+        return 0.0;
+    }
+    let physical = speed * speed / (2.0 * max_acceleration);
+    if start_acceleration != 0.0 || speed > TABLE_TOP_SPEED {
+        return physical;
+    }
+    let shape = Shape { degree, samples, horizon: horizon.to_bits(), max_acceleration: max_acceleration.to_bits() };
+    physical.max(plan_bound_at(shape, (speed / SPEED_STEP).floor() as usize))
+}
+
+/// Solves the plan's bound at every grid speed of a team shape now (about
+/// half a second), so that no later check waits for one: a daemon does it
+/// while it starts.
+pub fn prepare(degree: usize, samples: usize, horizon: f64, max_acceleration: f64) {
+    let shape = Shape { degree, samples, horizon: horizon.to_bits(), max_acceleration: max_acceleration.to_bits() };
+    for k in 0..=steps() {
+        plan_bound_at(shape, k);
+    }
+}
+
+fn steps() -> usize {
+    (TABLE_TOP_SPEED / SPEED_STEP).round() as usize
+}
+
+/// What a table of the plan's bound is for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct Shape {
+    degree: usize,
+    samples: usize,
+    horizon: u64,
+    max_acceleration: u64,
+}
+
+/// The plan's bound at the grid speed `k SPEED_STEP` (the top one beyond
+/// it), solved on first use (one small linear program, a few ms) and kept
+/// for the process.
+fn plan_bound_at(shape: Shape, k: usize) -> f64 {
+    static TABLES: Mutex<Vec<(Shape, Vec<Option<f64>>)>> = Mutex::new(Vec::new());
+    let k = k.min(steps());
+    let mut tables = TABLES.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+    let index = match tables.iter().position(|(s, _)| *s == shape) {
+        Some(i) => i,
+        None => {
+            tables.push((shape, vec![None; steps() + 1]));
+            tables.len() - 1
+        }
+    };
+    *tables[index].1[k].get_or_insert_with(|| {
+        let (horizon, max_acceleration) = (f64::from_bits(shape.horizon), f64::from_bits(shape.max_acceleration));
+        plan_bound(shape.degree, shape.samples, horizon, max_acceleration, k as f64 * SPEED_STEP)
+    })
+}
+
+/// The linear program of the module's doc at `speed`; 0 if it does not
+/// solve (no claim).
+fn plan_bound(degree: usize, samples: usize, horizon: f64, max_acceleration: f64, speed: f64) -> f64 {
+    if speed <= 0.0 {
+        return 0.0;
+    }
+    let n_xi = degree + 1;
+    let fixed = BOUNDARY_ROWS / 2;
+    // From 0 at `speed` (normalised time), zero acceleration: the first
+    // three coefficients.
+    let step = speed * horizon / degree as f64;
+    let start = [0.0, step, 2.0 * step];
+    let dense = DENSE_FACTOR * samples;
+    let limit = max_acceleration * horizon * horizon;
+    let mut lp = Lp::new(OptimizationDirection::Minimize);
+    let free: Vec<_> = (fixed..n_xi).map(|_| lp.add_var(0.0, (f64::NEG_INFINITY, f64::INFINITY))).collect();
+    let excursion = lp.add_var(1.0, (f64::NEG_INFINITY, f64::INFINITY));
+    let last = ((dense - 1) as f64 * CHECKED_SHARE).floor() as usize;
+    for s in 1..=last {
+        let tau = s as f64 / (dense - 1) as f64;
+        for (order, row) in [(0, bernstein_row(degree, 0, tau)), (2, bernstein_row(degree, 2, tau))] {
+            let known: f64 = start.iter().zip(&row).map(|(c, b)| c * b).sum();
+            let mut terms: Vec<_> = free.iter().zip(&row[fixed..]).map(|(v, b)| (*v, *b)).collect();
+            if order == 0 {
+                terms.push((excursion, -1.0));
+                lp.add_constraint(&terms, ComparisonOp::Le, -known);
+            } else {
+                lp.add_constraint(&terms, ComparisonOp::Le, limit - known);
+                lp.add_constraint(&terms, ComparisonOp::Ge, -limit - known);
+            }
+        }
+    }
+    match lp.solve().map(microlp::SolveOutcome::into_solution) {
+        Ok(Ok(solution)) => solution.objective().max(0.0),
+        _ => 0.0,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_plan_bound_grows_with_the_speed_and_is_above_the_physical_one() {
+        let shape = Shape { degree: 10, samples: 50, horizon: 5.0_f64.to_bits(), max_acceleration: 3.0_f64.to_bits() };
+        let t: Vec<f64> = (0..=steps()).map(|k| plan_bound_at(shape, k)).collect();
+        assert_eq!(t[0], 0.0);
+        for (k, w) in t.windows(2).enumerate() {
+            assert!(w[1] >= w[0], "at {} m/s: {} < {}", (k + 1) as f64 * SPEED_STEP, w[1], w[0]);
+        }
+        for k in 1..t.len() {
+            let v = k as f64 * SPEED_STEP;
+            assert!(t[k] >= v * v / 6.0 * (1.0 - 1e-9), "at {v} m/s: {} below the physical bound", t[k]);
+        }
+        // A start accelerating, or faster than the table, gets the physical bound.
+        assert_eq!(least_excursion(10, 50, 5.0, 3.0, 0.5, 1.0), 1.0 / 6.0);
+        assert_eq!(least_excursion(10, 50, 5.0, 3.0, 0.0, 4.0), 16.0 / 6.0);
+        assert_eq!(least_excursion(10, 50, 5.0, 3.0, 0.0, -1.0), 0.0);
+    }
+}

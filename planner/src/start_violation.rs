@@ -1,0 +1,93 @@
+//! What a measured start violates ([`StartViolation`], found by
+//! [`crate::problem::Problem::start_violations`]) and how deep a team that
+//! recovers from its starts accepts it ([`RECOVERABLE_DEPTH`]).
+
+use crate::problem_error::ProblemError;
+
+/// The deepest overlap of two robots' starts, or start outside the box, a
+/// team with [`crate::problem::Team::start_recovery`] plans from: half a separation
+/// (scaled distance 0.5; half the horizontal separation outside the box).
+/// Robots cannot be that deep in each other, nor that far out of the box,
+/// without a wrong measurement. An obstacle (a walker bumping a robot,
+/// walking on through it) may be reported anywhere.
+pub const RECOVERABLE_DEPTH: f64 = 0.5;
+
+/// What a measured start violates.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Against {
+    /// Another robot (a higher index).
+    Robot(usize),
+    /// An obstacle.
+    Obstacle(usize),
+    /// A side of the box on an axis (`upper`: the maximum).
+    Box {
+        /// The axis.
+        axis: usize,
+        /// Whether it is the upper side.
+        upper: bool,
+    },
+    /// A side of the box the robot, inside it, moves towards faster than
+    /// any plan it can follow (acceleration within
+    /// [`crate::problem::Team::max_acceleration`]) stops before it ([`crate::braking`]).
+    Braking {
+        /// The axis.
+        axis: usize,
+        /// Whether it is the upper side.
+        upper: bool,
+    },
+}
+
+impl Against {
+    /// The side of the box, `(axis, upper)`, for [`Against::Box`] and
+    /// [`Against::Braking`].
+    pub fn side(self) -> Option<(usize, bool)> {
+        match self {
+            Against::Box { axis, upper } | Against::Braking { axis, upper } => Some((axis, upper)),
+            _ => None,
+        }
+    }
+}
+
+/// A constraint a measured start violates beyond [`crate::problem::FEASIBILITY_TOLERANCE`]
+/// ([`crate::problem::Problem::start_violations`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StartViolation {
+    /// The robot (the lower index of a pair).
+    pub robot: usize,
+    /// What it violates.
+    pub against: Against,
+    /// How deep: `1 - d0` for a pair or an obstacle at scaled distance
+    /// `d0`; the excess over the horizontal separation for the box (for
+    /// [`Against::Braking`], how far past the side its least excursion
+    /// ends, [`crate::braking`]).
+    pub depth: f64,
+    /// How fast it deepens: the rate the scaled distance shrinks at, or
+    /// the outward speed (m/s) for the box; 0 when it does not.
+    pub closing: f64,
+}
+
+impl StartViolation {
+    /// Whether a team with [`crate::problem::Team::start_recovery`] plans from it: an
+    /// obstacle at any depth, a robot or the box to [`RECOVERABLE_DEPTH`],
+    /// a robot that cannot stop inside the box however fast (it is inside).
+    pub fn recoverable(&self) -> bool {
+        matches!(self.against, Against::Obstacle(_) | Against::Braking { .. }) || self.depth <= RECOVERABLE_DEPTH
+    }
+
+    /// Its validation error (`separation`: the team's horizontal
+    /// separation, the unit of a box depth).
+    pub fn error(&self, separation: f64) -> ProblemError {
+        match self.against {
+            Against::Robot(j) => ProblemError::StartsOverlap { i: self.robot, j, scaled: 1.0 - self.depth },
+            Against::Obstacle(m) => ProblemError::StartInObstacle { robot: self.robot, obstacle: m },
+            Against::Box { .. } => ProblemError::StartOutsideWorkspace(self.robot),
+            Against::Braking { axis, upper } => ProblemError::CannotBrake {
+                robot: self.robot,
+                axis,
+                upper,
+                speed: self.closing,
+                overshoot: self.depth * separation,
+            },
+        }
+    }
+}
