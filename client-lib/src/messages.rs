@@ -210,10 +210,10 @@ pub enum Reason {
     /// The held plan no longer clears the newest snapshot's obstacles (one
     /// appeared, moved or changed course onto it).
     WorldChanged = 23,
-    /// The plan was made from a start in contact (a robot touching another
-    /// or an obstacle, or outside the box; `reason_index`: the robot, the
-    /// first of a pair) and moves it out within the team's
-    /// `start_recovery_s` (docs/MESSAGES.md, "Starts in contact").
+    /// The plan was made from a start in contact (touching a robot or an
+    /// obstacle, outside the box, or unable to brake inside it;
+    /// `reason_index`: the robot, the first of a pair) and moves it out
+    /// within `start_recovery_s` (docs/MESSAGES.md, "Starts in contact").
     Recovering = 24,
     /// A robot moves towards a side of the box too fast to stop before it
     /// within the team's `max_acceleration` (`reason_index`: the robot);

@@ -21,7 +21,7 @@
 //!   exactly, the relaxation can only be smaller than the true least
 //!   excursion, so a robot whose room to the side is less than this (by
 //!   more than the box's tolerance) leaves the box under every plan of the
-//!   team's form that keeps its acceleration (1.2-3.9 times the physical
+//!   team's form that keeps its acceleration (1.25-3.2 times the physical
 //!   bound at 0.05-1.5 m/s for the default team at 3 m/s^2).
 //!
 //! ```
@@ -47,6 +47,10 @@ pub const SPEED_STEP: f64 = 0.02;
 /// the robots' top speed, 3 m/s by default).
 pub const TABLE_TOP_SPEED: f64 = 3.0;
 
+/// A start acceleration (m/s^2) this small counts as zero (a plan
+/// evaluated at its origin gives one within rounding).
+pub const AT_REST_ACCELERATION: f64 = 1e-9;
+
 /// The share of the horizon whose dense instants the plan's bound checks.
 pub const CHECKED_SHARE: f64 = 0.4;
 
@@ -68,18 +72,20 @@ pub fn least_excursion(
         return 0.0;
     }
     let physical = speed * speed / (2.0 * max_acceleration);
-    if start_acceleration != 0.0 || speed > TABLE_TOP_SPEED {
+    if start_acceleration.abs() > AT_REST_ACCELERATION || speed > TABLE_TOP_SPEED {
         return physical;
     }
-    let shape = Shape { degree, samples, horizon: horizon.to_bits(), max_acceleration: max_acceleration.to_bits() };
-    physical.max(plan_bound_at(shape, (speed / SPEED_STEP).floor() as usize))
+    physical.max(plan_bound_at(
+        Shape::of(degree, samples, horizon, max_acceleration),
+        (speed / SPEED_STEP).floor() as usize,
+    ))
 }
 
 /// Solves the plan's bound at every grid speed of a team shape now (about
-/// half a second), so that no later check waits for one: a daemon does it
-/// while it starts.
+/// a second here), so that no later check waits for one: a daemon does it
+/// while it starts, the offline commands when they build an instance.
 pub fn prepare(degree: usize, samples: usize, horizon: f64, max_acceleration: f64) {
-    let shape = Shape { degree, samples, horizon: horizon.to_bits(), max_acceleration: max_acceleration.to_bits() };
+    let shape = Shape::of(degree, samples, horizon, max_acceleration);
     for k in 0..=steps() {
         plan_bound_at(shape, k);
     }
@@ -98,9 +104,15 @@ struct Shape {
     max_acceleration: u64,
 }
 
+impl Shape {
+    fn of(degree: usize, samples: usize, horizon: f64, max_acceleration: f64) -> Self {
+        Self { degree, samples, horizon: horizon.to_bits(), max_acceleration: max_acceleration.to_bits() }
+    }
+}
+
 /// The plan's bound at the grid speed `k SPEED_STEP` (the top one beyond
-/// it), solved on first use (one small linear program, a few ms) and kept
-/// for the process.
+/// it), solved on first use (one small linear program, up to tens of ms)
+/// and kept for the process.
 fn plan_bound_at(shape: Shape, k: usize) -> f64 {
     static TABLES: Mutex<Vec<(Shape, Vec<Option<f64>>)>> = Mutex::new(Vec::new());
     let k = k.min(steps());
@@ -162,7 +174,7 @@ mod tests {
 
     #[test]
     fn the_plan_bound_grows_with_the_speed_and_is_above_the_physical_one() {
-        let shape = Shape { degree: 10, samples: 50, horizon: 5.0_f64.to_bits(), max_acceleration: 3.0_f64.to_bits() };
+        let shape = Shape::of(10, 50, 5.0, 3.0);
         let t: Vec<f64> = (0..=steps()).map(|k| plan_bound_at(shape, k)).collect();
         assert_eq!(t[0], 0.0);
         for (k, w) in t.windows(2).enumerate() {

@@ -336,10 +336,6 @@ pub struct Problem {
     pub obstacles: Vec<Obstacle>,
 }
 
-/// Starts farther from a side than this many physical stops
-/// (`v^2 / 2a`) are not checked against [`crate::braking`]'s bound.
-const SCREEN: f64 = 8.0;
-
 /// The depth and closing rate of a body at offset `d` from another
 /// (scaled by `(a, a, b)`), at relative velocity `v`, if it is closer than
 /// the tolerance allows.
@@ -416,28 +412,20 @@ impl Problem {
             }
         }
         if let Some(max_acceleration) = team.max_acceleration {
-            for (i, s) in
-                self.starts.iter().enumerate().filter(|(_, s)| team.workspace.contains(team.dim, &s.position, slack))
-            {
+            for (i, s) in self.starts.iter().enumerate() {
                 for axis in 0..team.dim.axes() {
-                    let (v, acc) = (s.velocity[axis], s.acceleration[axis]);
-                    let (upper, room) = if v > 0.0 {
-                        (true, team.workspace.max[axis] - s.position[axis])
-                    } else {
-                        (false, s.position[axis] - team.workspace.min[axis])
-                    };
-                    // Screened by a multiple of the physical stop (the plan's
-                    // bound is 1.2-3.9 times it) before the table is read.
-                    if v == 0.0 || v * v / (2.0 * max_acceleration) * SCREEN <= room {
+                    let (p, v, acc) = (s.position[axis], s.velocity[axis], s.acceleration[axis]);
+                    let (lo, hi) = (team.workspace.min[axis], team.workspace.max[axis]);
+                    // Outside on this axis it is `Against::Box`, above.
+                    if v == 0.0 || p < lo - slack || p > hi + slack {
                         continue;
                     }
-                    let towards = if upper { acc } else { -acc };
+                    let (upper, room, towards) = if v > 0.0 { (true, hi - p, acc) } else { (false, p - lo, -acc) };
                     let least =
                         least_excursion(team.degree, team.samples, team.horizon, max_acceleration, towards, v.abs());
-                    let overshoot = least - room;
-                    if overshoot > slack {
+                    if least - room > slack {
                         let against = Against::Braking { axis, upper };
-                        out.push(StartViolation { robot: i, against, depth: overshoot / a, closing: v.abs() });
+                        out.push(StartViolation { robot: i, against, depth: (least - room) / a, closing: v.abs() });
                     }
                 }
             }

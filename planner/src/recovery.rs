@@ -18,7 +18,9 @@
 //!   `(1 - RECOVERY_SLACK) d0 - u T_r / 4` (what braking within half the
 //!   recovery time `T_r` allows), never below 0;
 //! - a robot `e` outside the box on an axis, moving outwards at `u`, keeps
-//!   within `e (1 + RECOVERY_SLACK) + u T_r / 4` of that side;
+//!   within `e (1 + RECOVERY_SLACK) + u T_r / 4` of that side, and at
+//!   least `1 + RECOVERY_SLACK` times the least excursion of a plan it can
+//!   follow ([`crate::braking`]) from where it is;
 //! - a robot inside the box moving towards a side faster than any plan it
 //!   can follow stops before it ([`crate::braking`]) keeps within
 //!   `1 + RECOVERY_SLACK` times that plan's least excursion of where it is.
@@ -49,6 +51,7 @@
 //! assert_eq!(recovery.bounds(1, 0, 1.0, (-1.0, 1.0)), (-1.0, 1.0));
 //! ```
 
+use crate::braking::least_excursion;
 use crate::problem::{Against, Problem};
 
 /// How much deeper than measured a violation may become during recovery,
@@ -94,18 +97,20 @@ impl Recovery {
             .into_iter()
             .map(|v| {
                 let floor = match v.against {
-                    Against::Box { axis, upper } => {
-                        let p = problem.starts[v.robot].position[axis];
-                        let out = RECOVERY_SLACK * v.depth * team.separation().0 + v.closing * quarter;
-                        if upper { p + out } else { p - out }
-                    }
-                    Against::Braking { axis, upper } => {
-                        // Its least excursion (the room to the side and the
-                        // overshoot past it), with the slack, from where it is.
-                        let p = problem.starts[v.robot].position[axis];
-                        let room = if upper { team.workspace.max[axis] - p } else { p - team.workspace.min[axis] };
-                        let out = (1.0 + RECOVERY_SLACK) * (room + v.depth * team.separation().0);
-                        if upper { p + out } else { p - out }
+                    Against::Box { axis, upper } | Against::Braking { axis, upper } => {
+                        let s = &problem.starts[v.robot];
+                        let towards = if upper { s.acceleration[axis] } else { -s.acceleration[axis] };
+                        // At least the least excursion of a plan it can
+                        // follow (with the slack), from where it is.
+                        let least = team.max_acceleration.map_or(0.0, |a| {
+                            least_excursion(team.degree, team.samples, team.horizon, a, towards, v.closing)
+                        });
+                        let room = match v.against {
+                            Against::Box { .. } => RECOVERY_SLACK * v.depth * team.separation().0 + v.closing * quarter,
+                            _ => 0.0,
+                        };
+                        let out = room.max((1.0 + RECOVERY_SLACK) * least);
+                        if upper { s.position[axis] + out } else { s.position[axis] - out }
                     }
                     _ => ((1.0 - RECOVERY_SLACK) * (1.0 - v.depth) - v.closing * quarter).max(0.0),
                 };

@@ -76,15 +76,15 @@ pub struct Summary {
     pub success_rate: f64,
     /// Median planning time (ms), planned instances.
     pub median_ms: f64,
-    /// 95th-percentile planning time (ms), all instances.
+    /// 95th-percentile planning time (ms), planned instances.
     pub p95_ms: f64,
     /// Mean smoothness over successful instances.
     pub mean_smoothness: f64,
     /// Mean arc length over successful instances (m).
     pub mean_arc_length: f64,
-    /// Mean AM iterations, all instances.
+    /// Mean AM iterations, planned instances.
     pub mean_iterations: f64,
-    /// Median AM iterations, all instances.
+    /// Median AM iterations, planned instances.
     pub median_iterations: f64,
     /// Mean iterations to primal residual 0.01 m of the same start, over
     /// the instances that reached it (see `Record::iterations_to_0_01`).

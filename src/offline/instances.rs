@@ -81,10 +81,12 @@ pub struct InstanceArgs {
     /// Random and crowd families: largest random start speed (m/s); 0 plans from rest.
     #[arg(long, default_value_t = 0.0)]
     pub start_speed: f64,
-    /// The robots' largest acceleration (m/s^2; 0: unknown): a robot moving
-    /// towards a side of the box faster than it can stop before it makes
-    /// the instance certified infeasible (`CannotBrake`).
-    #[arg(long, default_value_t = 3.0)]
+    /// The robots' largest acceleration (m/s^2; 0: unknown, no check), 3
+    /// in the daemon's teams: a robot moving towards a side of the box
+    /// faster than any plan within it stops before the side makes the
+    /// instance certified infeasible (`CannotBrake`). The success verdict
+    /// does not check acceleration.
+    #[arg(long, default_value_t = 0.0)]
     pub max_acceleration: f64,
     /// Seed of the (first) instance; instance i uses seed + i.
     #[arg(long, default_value_t = 0)]
