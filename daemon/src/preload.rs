@@ -73,14 +73,6 @@ impl TeamPlanner {
         // their own (and drifting) with no plan at all.
         let stop_settings = AmSettings { verify_margin: 0.0, threads, ..buffered(AmSettings::safety_filter(), buffer) };
         let stops = EngineSet::preloaded(&stop_team, Objective::Projection, stop_settings, max)?;
-        // Every check of a robot that may not brake inside the box reads
-        // the bound for its team's shape: solved now, not in a snapshot's
-        // deadline (the stopping team is a shape of its own).
-        for t in [&team, &stop_team] {
-            if let Some(a) = t.max_acceleration {
-                flowopt_planner::braking::prepare(t.degree, t.samples, t.horizon, a);
-            }
-        }
         let stop_reference = SmoothReference::new(&stop_team).map_err(|e| match e {
             ReferenceError::Basis(b) => EngineError::Problem(b.into()),
             ReferenceError::Kkt(k) => EngineError::Kkt(k),

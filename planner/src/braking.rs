@@ -82,8 +82,8 @@ pub fn least_excursion(
 }
 
 /// Solves the plan's bound at every grid speed of a team shape now (about
-/// a second here), so that no later check waits for one: a daemon does it
-/// while it starts, the offline commands when they build an instance.
+/// a second here), so that no later check waits for one: the offline
+/// commands do it when they build an instance.
 pub fn prepare(degree: usize, samples: usize, horizon: f64, max_acceleration: f64) {
     let shape = Shape::of(degree, samples, horizon, max_acceleration);
     for k in 0..=steps() {
