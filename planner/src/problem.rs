@@ -387,6 +387,16 @@ impl Problem {
         b
     }
 
+    /// How far robot `i`, from its start, must go at the least towards the
+    /// `upper` (or lower) side on `axis` under any plan within
+    /// `max_acceleration` ([`crate::braking`]; 0 moving away from it).
+    pub fn least_excursion(&self, i: usize, axis: usize, upper: bool, max_acceleration: f64) -> f64 {
+        let (t, s) = (&self.team, &self.starts[i]);
+        let sign = if upper { 1.0 } else { -1.0 };
+        let (speed, towards) = (sign * s.velocity[axis], sign * s.acceleration[axis]);
+        least_excursion(t.degree, t.samples, t.horizon, max_acceleration, towards, speed)
+    }
+
     /// Every constraint the starts violate beyond [`FEASIBILITY_TOLERANCE`]:
     /// the box robot by robot (outside it, then, with
     /// [`Team::max_acceleration`], unable to stop inside it), robot pairs,
@@ -414,15 +424,14 @@ impl Problem {
         if let Some(max_acceleration) = team.max_acceleration {
             for (i, s) in self.starts.iter().enumerate() {
                 for axis in 0..team.dim.axes() {
-                    let (p, v, acc) = (s.position[axis], s.velocity[axis], s.acceleration[axis]);
+                    let (p, v) = (s.position[axis], s.velocity[axis]);
                     let (lo, hi) = (team.workspace.min[axis], team.workspace.max[axis]);
                     // Outside on this axis it is `Against::Box`, above.
                     if v == 0.0 || p < lo - slack || p > hi + slack {
                         continue;
                     }
-                    let (upper, room, towards) = if v > 0.0 { (true, hi - p, acc) } else { (false, p - lo, -acc) };
-                    let least =
-                        least_excursion(team.degree, team.samples, team.horizon, max_acceleration, towards, v.abs());
+                    let (upper, room) = if v > 0.0 { (true, hi - p) } else { (false, p - lo) };
+                    let least = self.least_excursion(i, axis, upper, max_acceleration);
                     if least - room > slack {
                         let against = Against::Braking { axis, upper };
                         out.push(StartViolation { robot: i, against, depth: (least - room) / a, closing: v.abs() });

@@ -51,7 +51,6 @@
 //! assert_eq!(recovery.bounds(1, 0, 1.0, (-1.0, 1.0)), (-1.0, 1.0));
 //! ```
 
-use crate::braking::least_excursion;
 use crate::problem::{Against, Problem};
 
 /// How much deeper than measured a violation may become during recovery,
@@ -98,19 +97,17 @@ impl Recovery {
             .map(|v| {
                 let floor = match v.against {
                     Against::Box { axis, upper } | Against::Braking { axis, upper } => {
-                        let s = &problem.starts[v.robot];
-                        let towards = if upper { s.acceleration[axis] } else { -s.acceleration[axis] };
                         // At least the least excursion of a plan it can
                         // follow (with the slack), from where it is.
-                        let least = team.max_acceleration.map_or(0.0, |a| {
-                            least_excursion(team.degree, team.samples, team.horizon, a, towards, v.closing)
-                        });
+                        let least =
+                            team.max_acceleration.map_or(0.0, |a| problem.least_excursion(v.robot, axis, upper, a));
                         let room = match v.against {
                             Against::Box { .. } => RECOVERY_SLACK * v.depth * team.separation().0 + v.closing * quarter,
                             _ => 0.0,
                         };
                         let out = room.max((1.0 + RECOVERY_SLACK) * least);
-                        if upper { s.position[axis] + out } else { s.position[axis] - out }
+                        let p = problem.starts[v.robot].position[axis];
+                        if upper { p + out } else { p - out }
                     }
                     _ => ((1.0 - RECOVERY_SLACK) * (1.0 - v.depth) - v.closing * quarter).max(0.0),
                 };

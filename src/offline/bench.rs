@@ -14,9 +14,8 @@ use flowopt_models::pipeline::Query;
 use flowopt_planner::am::Budget;
 
 use crate::offline::harness::{Harness, Record, StageMs, plan_distance};
-use crate::offline::instances::InstanceArgs;
+use crate::offline::instances::{InstanceArgs, infeasible_json};
 use crate::offline::planning_args::PlanningArgs;
-use crate::offline::solve::infeasible_json;
 use crate::offline::stats::{IterationStats, mean, quantile};
 
 /// Benchmark a planning method on seeded scenes of a family.

@@ -141,6 +141,19 @@ impl InstanceArgs {
     }
 }
 
+/// A certified infeasibility as `solve --json` and the bench's
+/// per-instance lines give it: the reason's wire name, the robot, and the
+/// constraint in words.
+pub fn infeasible_json(why: &ProblemError) -> serde_json::Value {
+    match *why {
+        ProblemError::CannotBrake { robot, axis, upper, speed, overshoot } => serde_json::json!({
+            "reason": "CannotBrake", "robot": robot, "axis": axis, "upper": upper,
+            "speed_m_s": speed, "overshoot_m": overshoot, "message": why.to_string(),
+        }),
+        _ => serde_json::json!({ "message": why.to_string() }),
+    }
+}
+
 /// Reads a scenario file: JSON for a `.json` file, TOML otherwise.
 pub fn load_scenario(path: &Path) -> Result<Problem> {
     let text = std::fs::read_to_string(path).with_context(|| format!("reading scenario {}", path.display()))?;

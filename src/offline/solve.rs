@@ -6,10 +6,10 @@ use anyhow::{Context, Result, bail};
 use clap::Args;
 use flowopt_client::pieces::{DEFAULT_PIECE_S, Pieces};
 use flowopt_planner::plan::JointPlan;
-use flowopt_planner::problem::{Problem, ProblemError};
+use flowopt_planner::problem::Problem;
 
 use crate::offline::harness::Harness;
-use crate::offline::instances::InstanceArgs;
+use crate::offline::instances::{InstanceArgs, infeasible_json};
 use crate::offline::planning_args::PlanningArgs;
 
 /// Plan one instance.
@@ -74,19 +74,6 @@ pub fn run(args: SolveArgs) -> Result<()> {
         }
     }
     Ok(())
-}
-
-/// A certified infeasibility as `solve --json` and the bench's
-/// per-instance lines give it: the reason's wire name, the robot, and the
-/// constraint in words.
-pub fn infeasible_json(why: &ProblemError) -> serde_json::Value {
-    match *why {
-        ProblemError::CannotBrake { robot, axis, upper, speed, overshoot } => serde_json::json!({
-            "reason": "CannotBrake", "robot": robot, "axis": axis, "upper": upper,
-            "speed_m_s": speed, "overshoot_m": overshoot, "message": why.to_string(),
-        }),
-        _ => serde_json::json!({ "message": why.to_string() }),
-    }
 }
 
 /// Writes every robot's plan `xi` of `problem` as Crazyflie pieces in
