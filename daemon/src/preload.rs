@@ -52,6 +52,9 @@ impl TeamPlanner {
     /// cold planners' race ([`flowopt_methods::build::members`] of the
     /// team's `[team.planner]` settings, with the tracking buffer).
     pub fn preload(config: &TeamConfig) -> Result<Self, PreloadError> {
+        // The braking certificate's linear programs run beside the worker,
+        // never inside an answer.
+        flowopt_planner::braking::solve_in_background(crate::realtime::idle_priority);
         let team = config.team()?;
         let settings = config.planner_settings(&team);
         let buffer = tracking_buffer(&team, config.follow_tolerance_m);

@@ -169,6 +169,21 @@ pub fn lower_lane_priority() {
     }
 }
 
+/// Moves the calling thread to `SCHED_IDLE` (it runs only on a core
+/// nothing else wants; best effort, a refusal is logged): what the braking
+/// bound's background thread runs first, so that its linear programs
+/// (about a second of one core when a team first moves) never take a core
+/// from the controllers, the simulator or the cold lanes (a speed not
+/// solved yet only means a smaller bound a little longer).
+pub fn idle_priority() {
+    let param = libc::sched_param { sched_priority: 0 };
+    // SAFETY: a plain syscall on the calling thread (pid 0), with a valid
+    // parameter.
+    if unsafe { libc::sched_setscheduler(0, libc::SCHED_IDLE, &param) } != 0 {
+        warn!("cannot move a background thread to SCHED_IDLE");
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -63,6 +63,23 @@ pub struct Basis {
 impl Basis {
     /// The basis of `degree` sampled at `samples` instants (both ends included).
     pub fn new(degree: usize, samples: usize) -> Result<Self, BasisError> {
+        Self::check(degree, samples)?;
+        let n_xi = degree + 1;
+        let (mut p, mut pd, mut pdd) =
+            (vec![0.0; samples * n_xi], vec![0.0; samples * n_xi], vec![0.0; samples * n_xi]);
+        for k in 0..samples {
+            let tau = k as f64 / (samples - 1) as f64;
+            let rows = k * n_xi..(k + 1) * n_xi;
+            bernstein_row_into(degree, 0, tau, &mut p[rows.clone()]);
+            bernstein_row_into(degree, 1, tau, &mut pd[rows.clone()]);
+            bernstein_row_into(degree, 2, tau, &mut pdd[rows]);
+        }
+        Ok(Self { degree, samples, p, pd, pdd })
+    }
+
+    /// Whether a basis of `degree` at `samples` instants can be built (what
+    /// [`Self::new`] refuses), without building it.
+    pub fn check(degree: usize, samples: usize) -> Result<(), BasisError> {
         if degree < BOUNDARY_ROWS {
             return Err(BasisError::DegreeTooLow(degree));
         }
@@ -72,17 +89,7 @@ impl Basis {
         if samples < degree + 1 {
             return Err(BasisError::TooFewSamples { samples, coefficients: degree + 1 });
         }
-        let n_xi = degree + 1;
-        let mut p = Vec::with_capacity(samples * n_xi);
-        let mut pd = Vec::with_capacity(samples * n_xi);
-        let mut pdd = Vec::with_capacity(samples * n_xi);
-        for k in 0..samples {
-            let tau = k as f64 / (samples - 1) as f64;
-            p.extend(bernstein_row(degree, 0, tau));
-            pd.extend(bernstein_row(degree, 1, tau));
-            pdd.extend(bernstein_row(degree, 2, tau));
-        }
-        Ok(Self { degree, samples, p, pd, pdd })
+        Ok(())
     }
 
     /// Polynomial degree `N`.
@@ -173,12 +180,22 @@ fn binomial(n: usize, k: usize) -> f64 {
 /// Uses `d^r/dtau^r B_{i,N} = N!/(N-r)! sum_j (-1)^(r-j) C(r,j) B_{i-j,N-r}`.
 pub fn bernstein_row(degree: usize, order: usize, tau: f64) -> Vec<f64> {
     let mut row = vec![0.0; degree + 1];
+    bernstein_row_into(degree, order, tau, &mut row);
+    row
+}
+
+/// [`bernstein_row`] written into `row` (`degree + 1` long), allocating
+/// nothing.
+pub fn bernstein_row_into(degree: usize, order: usize, tau: f64, row: &mut [f64]) {
+    debug_assert_eq!(row.len(), degree + 1);
     if order > degree {
-        return row;
+        row.fill(0.0);
+        return;
     }
     let low = degree - order;
-    let lower: Vec<f64> =
-        (0..=low).map(|i| binomial(low, i) * tau.powi(i as i32) * (1.0 - tau).powi((low - i) as i32)).collect();
+    // B_{i, N-r}(tau), computed where it is used (no buffer: a plan's
+    // evaluation calls this per instant).
+    let lower = |i: usize| binomial(low, i) * tau.powi(i as i32) * (1.0 - tau).powi((low - i) as i32);
     let falling: f64 = (0..order).map(|i| (degree - i) as f64).product();
     for (i, value) in row.iter_mut().enumerate() {
         let mut sum = 0.0;
@@ -186,12 +203,11 @@ pub fn bernstein_row(degree: usize, order: usize, tau: f64) -> Vec<f64> {
             // term B_{i-j, N-r}
             if i >= j && i - j <= low {
                 let sign = if (order - j).is_multiple_of(2) { 1.0 } else { -1.0 };
-                sum += sign * binomial(order, j) * lower[i - j];
+                sum += sign * binomial(order, j) * lower(i - j);
             }
         }
         *value = falling * sum;
     }
-    row
 }
 
 #[cfg(test)]

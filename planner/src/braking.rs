@@ -17,7 +17,11 @@
 //!   depends on the speed alone: it is solved per team shape on a grid of
 //!   speeds ([`SPEED_STEP`]; each on first use, or all by [`prepare`]) and
 //!   read at the grid speed at or below `v` (the excursion grows with the
-//!   speed; a test checks it). Solved
+//!   speed; a test checks it). In a process that asked for it
+//!   ([`solve_in_background`]: the daemon) no caller waits for one: a
+//!   speed not solved yet is handed to a background thread and read, until
+//!   it is solved, at the fastest solved grid speed below it (a smaller
+//!   bound, still a lower one). Solved
 //!   exactly, the relaxation can only be smaller than the true least
 //!   excursion, so a robot whose room to the side is less than this (by
 //!   more than the box's tolerance) leaves the box under every plan of the
@@ -34,6 +38,9 @@
 //! ```
 
 use std::sync::Mutex;
+use std::sync::OnceLock;
+
+use crossbeam::channel::{Sender, unbounded};
 
 use microlp::{ComparisonOp, OptimizationDirection, Problem as Lp};
 
@@ -110,24 +117,98 @@ impl Shape {
     }
 }
 
-/// The plan's bound at the grid speed `k SPEED_STEP` (the top one beyond
-/// it), solved on first use (one small linear program, up to tens of ms)
-/// and kept for the process.
-fn plan_bound_at(shape: Shape, k: usize) -> f64 {
-    static TABLES: Mutex<Vec<(Shape, Vec<Option<f64>>)>> = Mutex::new(Vec::new());
-    let k = k.min(steps());
-    let mut tables = TABLES.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
-    let index = match tables.iter().position(|(s, _)| *s == shape) {
-        Some(i) => i,
-        None => {
-            tables.push((shape, vec![None; steps() + 1]));
-            tables.len() - 1
+/// The solved grid speeds of each team shape asked for so far.
+static TABLES: Mutex<Vec<(Shape, Vec<Entry>)>> = Mutex::new(Vec::new());
+
+/// Where the speeds to solve go in a process that solves them in the
+/// background ([`solve_in_background`]).
+static BACKGROUND: OnceLock<Sender<(Shape, usize)>> = OnceLock::new();
+
+/// One grid speed of a table.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Entry {
+    Unsolved,
+    /// Handed to the background thread.
+    Asked,
+    Solved(f64),
+}
+
+/// From now on in this process, no caller of [`least_excursion`] waits for
+/// a linear program: a grid speed not solved yet is solved on a background
+/// thread (started by the first call) and read meanwhile at the fastest
+/// solved grid speed below it, or 0 (the physical bound alone). The
+/// daemon's worker asks for it: a linear program takes a few to tens of
+/// milliseconds, which a 64-robot team's answers paid inside their 40 ms
+/// deadline whenever a gust brought a robot to a new speed. Offline
+/// commands keep solving on first use, so their verdicts do not depend on
+/// timing. The thread runs `on_start` first (the daemon lowers its
+/// priority there); calls after the first change nothing.
+pub fn solve_in_background(on_start: fn()) {
+    BACKGROUND.get_or_init(|| {
+        let (tx, rx) = unbounded::<(Shape, usize)>();
+        let solver = std::thread::Builder::new().name("flowopt-braking".into()).spawn(move || {
+            on_start();
+            for (shape, k) in rx {
+                let bound = solve(shape, k);
+                let mut tables = TABLES.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+                let index = table(&mut tables, shape);
+                tables[index].1[k] = Entry::Solved(bound);
+            }
+        });
+        if let Err(e) = solver {
+            tracing::warn!(
+                "the braking bound's background thread did not start ({e}): each speed is solved on first use"
+            );
         }
-    };
-    *tables[index].1[k].get_or_insert_with(|| {
-        let (horizon, max_acceleration) = (f64::from_bits(shape.horizon), f64::from_bits(shape.max_acceleration));
-        plan_bound(shape.degree, shape.samples, horizon, max_acceleration, k as f64 * SPEED_STEP)
+        tx
+    });
+}
+
+/// The index of `shape`'s table in `tables`, added if new.
+fn table(tables: &mut Vec<(Shape, Vec<Entry>)>, shape: Shape) -> usize {
+    tables.iter().position(|(s, _)| *s == shape).unwrap_or_else(|| {
+        tables.push((shape, vec![Entry::Unsolved; steps() + 1]));
+        tables.len() - 1
     })
+}
+
+/// The plan's bound at grid speed `k` of `shape`.
+fn solve(shape: Shape, k: usize) -> f64 {
+    let (horizon, max_acceleration) = (f64::from_bits(shape.horizon), f64::from_bits(shape.max_acceleration));
+    plan_bound(shape.degree, shape.samples, horizon, max_acceleration, k as f64 * SPEED_STEP)
+}
+
+/// The plan's bound at the grid speed `k SPEED_STEP` (the top one beyond
+/// it), solved on first use (one small linear program, up to tens of ms,
+/// outside the table's lock) and kept for the process; with
+/// [`solve_in_background`], never waited for.
+fn plan_bound_at(shape: Shape, k: usize) -> f64 {
+    let k = k.min(steps());
+    {
+        let mut tables = TABLES.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+        let index = table(&mut tables, shape);
+        let entries = &mut tables[index].1;
+        if let Entry::Solved(bound) = entries[k] {
+            return bound;
+        }
+        // Handed to the background thread (unless it is gone: then solved
+        // here).
+        let asked = entries[k] == Entry::Asked
+            || BACKGROUND.get().is_some_and(|background| background.send((shape, k)).is_ok());
+        if asked {
+            entries[k] = Entry::Asked;
+            return entries[..k]
+                .iter()
+                .rev()
+                .find_map(|e| if let Entry::Solved(b) = e { Some(*b) } else { None })
+                .unwrap_or(0.0);
+        }
+    }
+    let bound = solve(shape, k);
+    let mut tables = TABLES.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+    let index = table(&mut tables, shape);
+    tables[index].1[k] = Entry::Solved(bound);
+    bound
 }
 
 /// The linear program of the module's doc at `speed`; 0 if it does not

@@ -3,7 +3,7 @@
 
 use nalgebra::Vector3;
 
-use crate::basis::{BOUNDARY_ROWS, bernstein_row};
+use crate::basis::{BOUNDARY_ROWS, bernstein_row_into};
 use crate::problem::{Dim, Problem, StartState, Team};
 use crate::route::Fitter;
 
@@ -22,7 +22,8 @@ pub struct Kinematics {
 /// instant of a plan: evaluates any robot's coefficients there.
 #[derive(Debug, Clone)]
 pub struct InstantRows {
-    rows: [Vec<f64>; 3],
+    /// Position's, velocity's and acceleration's rows, one after the other.
+    rows: Vec<f64>,
     /// Time-derivative scales `1, 1/T, 1/T^2`.
     scale: [f64; 3],
 }
@@ -32,20 +33,22 @@ impl InstantRows {
     /// (clamped to `[0, horizon]`).
     pub fn new(degree: usize, horizon: f64, t: f64) -> Self {
         let tau = (t / horizon).clamp(0.0, 1.0);
-        Self {
-            rows: [0, 1, 2].map(|order| bernstein_row(degree, order, tau)),
-            scale: [1.0, 1.0 / horizon, 1.0 / (horizon * horizon)],
+        let mut rows = vec![0.0; 3 * (degree + 1)];
+        for (order, row) in rows.chunks_exact_mut(degree + 1).enumerate() {
+            bernstein_row_into(degree, order, tau, row);
         }
+        Self { rows, scale: [1.0, 1.0 / horizon, 1.0 / (horizon * horizon)] }
     }
 
     /// The kinematics of one robot whose coefficients along axis `a` are
     /// `coefficients(a)`, for `axes` axes.
     pub fn kinematics<'c>(&self, axes: usize, coefficients: impl Fn(usize) -> &'c [f64]) -> Kinematics {
         let mut v = [Vector3::zeros(); 3];
+        let nx = self.rows.len() / 3;
         for a in 0..axes {
             let c = coefficients(a);
-            for order in 0..3 {
-                v[order][a] = self.rows[order].iter().zip(c).map(|(b, x)| b * x).sum::<f64>() * self.scale[order];
+            for (order, row) in self.rows.chunks_exact(nx).enumerate() {
+                v[order][a] = row.iter().zip(c).map(|(b, x)| b * x).sum::<f64>() * self.scale[order];
             }
         }
         Kinematics { position: v[0], velocity: v[1], acceleration: v[2] }
@@ -157,11 +160,13 @@ impl JointPlan {
     pub fn sampled(&self, samples: usize, order: usize) -> Vec<f64> {
         let nx = self.degree + 1;
         let scale = self.horizon.powi(-(order as i32));
-        let rows: Vec<Vec<f64>> =
-            (0..samples).map(|s| bernstein_row(self.degree, order, s as f64 / (samples - 1) as f64)).collect();
+        let mut rows = vec![0.0; samples * nx];
+        for (s, row) in rows.chunks_exact_mut(nx).enumerate() {
+            bernstein_row_into(self.degree, order, s as f64 / (samples - 1) as f64, row);
+        }
         let mut out = vec![0.0; self.dim.axes() * self.robots * samples];
         for (series, c) in out.chunks_exact_mut(samples).zip(self.coeffs.chunks_exact(nx)) {
-            for (o, row) in series.iter_mut().zip(&rows) {
+            for (o, row) in series.iter_mut().zip(rows.chunks_exact(nx)) {
                 *o = row.iter().zip(c).map(|(b, x)| b * x).sum::<f64>() * scale;
             }
         }

@@ -302,7 +302,7 @@ impl Team {
                 return Err(ProblemError::EmptyWorkspace { axis: a });
             }
         }
-        Basis::new(self.degree, self.samples)?;
+        Basis::check(self.degree, self.samples)?;
         Ok(())
     }
 

@@ -166,19 +166,32 @@ impl Check<'_> {
     }
 
     /// The corrections of `pair`, if it violates at any of its instants,
-    /// appended to `hits` instant by instant: `+c` for `i`, `-c` for `j`.
-    pub(super) fn hits<const D: usize>(&self, pair: Candidate, scratch: &mut Scratch, hits: &mut Vec<Hit>) {
+    /// appended instant by instant (`+c` for `i`, `-c` for `j`) to the
+    /// list of the part that adds `i`'s corrections and, where another
+    /// part adds `j`'s, to that part's too (`adder`: per robot, its part).
+    pub(super) fn hits<const D: usize>(
+        &self,
+        pair: Candidate,
+        scratch: &mut Scratch,
+        lists: &mut [Vec<Hit>],
+        adder: &[u32],
+    ) {
         if !self.violates::<D>(pair, scratch) {
             return;
         }
         let (i, j) = (pair.i as usize, pair.j as usize);
+        let (to_i, to_j) = (adder[i] as usize, adder[j] as usize);
         let (pi, pj) =
             (robot_rows::<D>(self.pos, self.n, self.count, i), robot_rows::<D>(self.pos, self.n, self.count, j));
         for k in self.instants(pair) {
             if let Some(c) = push::<D>(&pi, &pj, k, &self.inv, &self.limits.robot_sep, scratch.target[k], (i, j)) {
                 let mut c3 = [0.0; 3];
                 c3[..D].copy_from_slice(&c);
-                hits.push(Hit { i: pair.i, j: pair.j, k: k as u32, c: c3 });
+                let hit = Hit { i: pair.i, j: pair.j, k: k as u32, c: c3 };
+                lists[to_i].push(hit);
+                if to_j != to_i {
+                    lists[to_j].push(hit);
+                }
             }
         }
     }

@@ -14,7 +14,7 @@ use super::super::pairs::{BROAD_PHASE_MIN_ROBOTS, Candidate, KEEP_MIN_ROBOTS};
 use super::check::{Check, all_pairs, largest_steps, largest_target, push, reach_share, robot_rows, robot_step};
 use super::grid::SampleGrid;
 use super::limits::Limits;
-use super::memory::{BlockSums, PartMemory, Projection, ROBOT_BLOCK, block_robots};
+use super::memory::{BlockSums, PartMemory, Projection, ROBOT_BLOCK, Routed, block_robots};
 use crate::crew::{Crew, Disjoint, share};
 use crate::linalg::{Accum, gemm};
 use crate::problem::Against;
@@ -113,10 +113,11 @@ impl Projection {
 
     /// Checks the candidates, [`PAIR_CHUNK`] at a time, each part taking
     /// the next chunk left: alone, adding the corrections as it goes (and
-    /// their `||c||^2` to the blocks' sums); on a crew, each part's hits in
-    /// its memory and each chunk's place among them in `spans`
-    /// ([`Self::per_block`] adds them in candidate order). Stopping at the
-    /// first violation, the violating pair a part found instead.
+    /// their `||c||^2` to the blocks' sums); on a crew, each part's hits
+    /// routed to the parts that add them ([`Routed`]), and each chunk's
+    /// place among them ([`Self::per_block`] adds them in candidate order).
+    /// Stopping at the first violation, the violating pair a part found
+    /// instead.
     pub(super) fn check_pairs<const D: usize>(
         &mut self,
         crew: &Crew<'_>,
@@ -126,7 +127,7 @@ impl Projection {
         broad: bool,
     ) {
         let inv = limits.robot_sep.map(|s| 1.0 / (s * s));
-        let Projection { pos, corr, touched, steps, parts, hits, broad: phase, all, first, spans, blocks, .. } = self;
+        let Projection { pos, corr, touched, steps, parts, routed, broad: phase, all, first, blocks, .. } = self;
         let candidates: &[Candidate] = if broad { phase.current() } else { all };
         let check = Check { pos, steps, n, count, limits, inv };
         let first = *first;
@@ -140,15 +141,21 @@ impl Projection {
             }
             return;
         }
+        let size = crew.size();
         let chunks = candidates.len().div_ceil(PAIR_CHUNK);
-        spans.resize(chunks, [0; 3]);
+        routed.prepare(n, size, chunks);
         let next = AtomicUsize::new(0);
         let found = AtomicBool::new(false);
-        let (parts, all_hits, spans) = (Disjoint::new(parts), Disjoint::new(hits), Disjoint::new(spans));
+        let Routed { lists, checker, ranges, adder } = routed;
+        let adder = &*adder;
+        let (parts, lists) = (Disjoint::new(parts), Disjoint::new(lists));
+        let (checker, ranges) = (Disjoint::new(checker), Disjoint::new(ranges));
         crew.run(&|part| {
-            // SAFETY: each part takes its own memory, each chunk one part.
-            let (PartMemory { scratch, found: mine }, hits) = unsafe { (parts.at(part), all_hits.at(part)) };
-            hits.clear();
+            // SAFETY: each part takes its own memory and lists, each chunk
+            // one part.
+            let (PartMemory { scratch, found: mine }, lists) = unsafe { (parts.at(part), lists.at(part)) };
+            let lists = &mut lists[..size];
+            lists.iter_mut().for_each(Vec::clear);
             *mine = None;
             loop {
                 let chunk = next.fetch_add(1, Ordering::Relaxed);
@@ -156,28 +163,28 @@ impl Projection {
                     break;
                 }
                 let pairs = &candidates[chunk * PAIR_CHUNK..((chunk + 1) * PAIR_CHUNK).min(candidates.len())];
-                let start = hits.len();
+                // SAFETY: as above.
+                let ranges = unsafe { ranges.range(chunk * size..(chunk + 1) * size) };
+                for (range, list) in ranges.iter_mut().zip(lists.iter()) {
+                    range[0] = list.len() as u32;
+                }
                 for &pair in pairs {
                     if !first {
-                        check.hits::<D>(pair, scratch, hits);
+                        check.hits::<D>(pair, scratch, lists, adder);
                     } else if check.violates::<D>(pair, scratch) {
                         *mine = Some(pair);
                         found.store(true, Ordering::Relaxed);
                         break;
                     }
                 }
+                for (range, list) in ranges.iter_mut().zip(lists.iter()) {
+                    range[1] = list.len() as u32;
+                }
                 // SAFETY: as above.
-                unsafe { *spans.at(chunk) = [part as u32, start as u32, hits.len() as u32] };
+                unsafe { *checker.at(chunk) = part as u32 };
             }
         });
-        // Any part may take every hit next time: room for all of them in
-        // each, so that warm iterations do not allocate whichever part is
-        // faster.
-        let hits = &mut self.hits[..crew.size()];
-        let total: usize = hits.iter().map(Vec::len).sum();
-        for mine in hits {
-            mine.reserve(total.saturating_sub(mine.len()));
-        }
+        self.routed.reserve(size);
     }
 
     /// Per robot block: on a crew, the pairs' hits on its robots in
@@ -196,9 +203,8 @@ impl Projection {
             let track = &limits.tracks[m * D * count..(m + 1) * D * count];
             limits.chord.then(|| largest_target(&largest, &largest_steps(track, D, 1, count), &inv))
         }));
-        let Projection { pos, corr, mapped, touched, parts, hits, blocks: sums, obstacle_bounds, first, spans, .. } =
-            self;
-        let (first, pos, bounds, spans, hits) = (*first, &*pos, &*obstacle_bounds, &*spans, &*hits);
+        let Projection { pos, corr, mapped, touched, parts, routed, blocks: sums, obstacle_bounds, first, .. } = self;
+        let (first, pos, bounds, routed) = (*first, &*pos, &*obstacle_bounds, &*routed);
         let (corr, mapped, touched) = (Disjoint::new(corr), Disjoint::new(mapped), Disjoint::new(touched));
         let (parts, sums) = (Disjoint::new(parts), Disjoint::new(sums));
         crew.run(&|part| {
@@ -207,8 +213,9 @@ impl Projection {
             let mine = share(part, crew.size(), blocks);
             if crew.size() > 1 && !first {
                 add_hits::<D>(
-                    spans,
-                    hits,
+                    routed,
+                    part,
+                    crew.size(),
                     n,
                     count,
                     block_robots(mine.start, n).start..block_robots(mine.end, n).start,
@@ -349,15 +356,16 @@ fn clamp_row(row: &mut [f64], p: &[f64], lo: f64, hi: f64) -> (f64, bool) {
     (sq, any)
 }
 
-/// Adds the hits of the chunks `spans` (of the parts' hit lists `hits`) on
-/// robots `robots` to their corrections, in candidate order: `+c` to `i`,
+/// Adds the hits `routed` to part `part` of `parts` on robots `robots`
+/// to their corrections, chunk by chunk in candidate order: `+c` to `i`,
 /// `-c` to `j`, each pair's `||c||^2` to the sums of `i`'s block (as
 /// [`super::check::Check::push`] adds them). The caller owns those robots'
 /// rows, marks and blocks.
 #[allow(clippy::too_many_arguments, reason = "the step's shared buffers")]
 fn add_hits<const D: usize>(
-    spans: &[[u32; 3]],
-    hits: &[Vec<super::check::Hit>],
+    routed: &Routed,
+    part: usize,
+    parts: usize,
     n: usize,
     count: usize,
     robots: std::ops::Range<usize>,
@@ -374,8 +382,9 @@ fn add_hits<const D: usize>(
         }
     };
     let mut last = (u32::MAX, u32::MAX);
-    for &[part, start, end] in spans {
-        for hit in &hits[part as usize][start as usize..end as usize] {
+    for (chunk, &checker) in routed.checker.iter().enumerate() {
+        let [start, end] = routed.ranges[chunk * parts + part];
+        for hit in &routed.lists[checker as usize][part][start as usize..end as usize] {
             if (hit.i, hit.j) != last {
                 flush(&mut pending);
                 last = (hit.i, hit.j);

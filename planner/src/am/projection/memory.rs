@@ -31,18 +31,15 @@ pub(crate) struct Projection {
     pub touched: Vec<bool>,
     /// Each crew part's memory (one at least).
     pub(super) parts: Vec<PartMemory>,
-    /// Each crew part's hits: the corrections of the violating pairs of
-    /// the chunks it checked, in order (apart from [`PartMemory`], since
-    /// every part reads them all while it writes its own scratch).
-    pub(super) hits: Vec<Vec<Hit>>,
+    /// On a crew, the corrections of the violating pairs, routed to the
+    /// parts that add them (apart from [`PartMemory`], since parts read
+    /// each other's while they write their own scratch).
+    pub(super) routed: Routed,
     /// Each robot block's results.
     pub(super) blocks: Vec<BlockSums>,
     pub(super) broad: BroadPhase,
     /// Every pair, in order (teams checked without the broad phase).
     pub(super) all: Vec<Candidate>,
-    /// On a crew, per chunk of candidates: the part that checked it and
-    /// the range of its hits, `[part, start, end]`.
-    pub(super) spans: Vec<[u32; 3]>,
     /// Each robot's largest scaled move between instants (chord inflation).
     pub(super) steps: Vec<f64>,
     /// Each robot's share of the broad phase's reach, per axis (m).
@@ -96,11 +93,10 @@ impl Projection {
             mapped: vec![0.0; dim.axes() * robots * n_xi],
             touched: vec![false; robots],
             parts: vec![PartMemory::new(count)],
-            hits: vec![Vec::new()],
+            routed: Routed::default(),
             blocks: vec![BlockSums::default(); robots.div_ceil(ROBOT_BLOCK)],
             broad: BroadPhase::default(),
             all: Vec::new(),
-            spans: Vec::new(),
             steps: vec![0.0; robots],
             grow: vec![[0.0; 3]; robots],
             obstacle_bounds: Vec::new(),
@@ -113,7 +109,68 @@ impl Projection {
     pub(super) fn ensure_parts(&mut self, parts: usize, count: usize) {
         if self.parts.len() < parts {
             self.parts.resize(parts, PartMemory::new(count));
-            self.hits.resize_with(parts, Vec::new);
+        }
+        self.routed.ensure_parts(parts);
+    }
+}
+
+/// The pairs' hits of one step on a crew, each in the lists of the parts
+/// that add it (the part of the block of its robot `i`, and of `j`'s):
+/// a part adding its robots' corrections reads only the hits on them,
+/// instead of every hit of the step (which, on many threads, every part
+/// reading everything made as slow as one).
+#[derive(Debug, Default)]
+pub(super) struct Routed {
+    /// `[checking part][adding part]`: the hits one part found for
+    /// another, chunk after chunk, in candidate order within each.
+    pub(super) lists: Vec<Vec<Vec<Hit>>>,
+    /// Per chunk of candidates, the part that checked it.
+    pub(super) checker: Vec<u32>,
+    /// Per chunk and adding part (`chunk * parts + part`), the range of the
+    /// chunk's hits in its checker's list for that part.
+    pub(super) ranges: Vec<[u32; 2]>,
+    /// Per robot, the part that adds its corrections.
+    pub(super) adder: Vec<u32>,
+}
+
+impl Routed {
+    /// Lists for a crew of `parts` parts.
+    fn ensure_parts(&mut self, parts: usize) {
+        if self.lists.len() < parts {
+            self.lists.resize_with(parts, Vec::new);
+        }
+        for lists in &mut self.lists {
+            if lists.len() < parts {
+                lists.resize_with(parts, Vec::new);
+            }
+        }
+    }
+
+    /// Ready for a step of `chunks` chunks on `parts` parts of a team of
+    /// `n` robots, whose blocks part `p` adds `share(p, parts, blocks)` of.
+    pub(super) fn prepare(&mut self, n: usize, parts: usize, chunks: usize) {
+        let blocks = n.div_ceil(ROBOT_BLOCK);
+        self.adder.clear();
+        self.adder.resize(n, 0);
+        for part in 0..parts {
+            for b in crate::crew::share(part, parts, blocks) {
+                self.adder[block_robots(b, n)].fill(part as u32);
+            }
+        }
+        self.checker.resize(chunks, 0);
+        self.ranges.resize(chunks * parts, [0; 2]);
+    }
+
+    /// After a step on `parts` parts: room in every checking part's list
+    /// for all the hits its adding part got, so that warm iterations do
+    /// not allocate whichever part is faster.
+    pub(super) fn reserve(&mut self, parts: usize) {
+        for adder in 0..parts {
+            let total: usize = self.lists[..parts].iter().map(|l| l[adder].len()).sum();
+            for lists in &mut self.lists[..parts] {
+                let list = &mut lists[adder];
+                list.reserve(total.saturating_sub(list.len()));
+            }
         }
     }
 }
