@@ -209,6 +209,12 @@ pub fn share(part: usize, parts: usize, len: usize) -> Range<usize> {
     len * part / parts..len * (part + 1) / parts
 }
 
+/// The part whose [`share`] of `0..len` (split in `parts` parts) holds
+/// `item`: the last part whose share starts at or before it.
+pub fn owner(item: usize, parts: usize, len: usize) -> usize {
+    ((item + 1) * parts - 1) / len
+}
+
 /// A slice the parts of a step write in disjoint ranges.
 pub struct Disjoint<'a, T> {
     ptr: *mut T,
@@ -281,6 +287,17 @@ mod tests {
             });
         });
         assert!(values.iter().enumerate().all(|(i, v)| *v == i + 1));
+    }
+
+    #[test]
+    fn the_owner_of_an_item_is_the_part_whose_share_holds_it() {
+        for len in 1..40 {
+            for parts in 1..=len {
+                for item in 0..len {
+                    assert!(share(owner(item, parts, len), parts, len).contains(&item), "{item} of {len} in {parts}");
+                }
+            }
+        }
     }
 
     #[test]

@@ -168,19 +168,19 @@ impl Check<'_> {
     /// The corrections of `pair`, if it violates at any of its instants,
     /// appended instant by instant (`+c` for `i`, `-c` for `j`) to the
     /// list of the part that adds `i`'s corrections and, where another
-    /// part adds `j`'s, to that part's too (`adder`: per robot, its part).
+    /// part adds `j`'s, to that part's too (`adder`: a robot's part).
     pub(super) fn hits<const D: usize>(
         &self,
         pair: Candidate,
         scratch: &mut Scratch,
         lists: &mut [Vec<Hit>],
-        adder: &[u32],
+        adder: &impl Fn(usize) -> usize,
     ) {
         if !self.violates::<D>(pair, scratch) {
             return;
         }
         let (i, j) = (pair.i as usize, pair.j as usize);
-        let (to_i, to_j) = (adder[i] as usize, adder[j] as usize);
+        let (to_i, to_j) = (adder(i), adder(j));
         let (pi, pj) =
             (robot_rows::<D>(self.pos, self.n, self.count, i), robot_rows::<D>(self.pos, self.n, self.count, j));
         for k in self.instants(pair) {

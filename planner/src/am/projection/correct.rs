@@ -15,7 +15,7 @@ use super::check::{Check, all_pairs, largest_steps, largest_target, push, reach_
 use super::grid::SampleGrid;
 use super::limits::Limits;
 use super::memory::{BlockSums, PartMemory, Projection, ROBOT_BLOCK, Routed, block_robots};
-use crate::crew::{Crew, Disjoint, share};
+use crate::crew::{Crew, Disjoint, owner, share};
 use crate::linalg::{Accum, gemm};
 use crate::problem::Against;
 
@@ -143,11 +143,14 @@ impl Projection {
         }
         let size = crew.size();
         let chunks = candidates.len().div_ceil(PAIR_CHUNK);
-        routed.prepare(n, size, chunks);
+        routed.prepare(size, chunks);
         let next = AtomicUsize::new(0);
         let found = AtomicBool::new(false);
-        let Routed { lists, checker, ranges, adder } = routed;
-        let adder = &*adder;
+        let Routed { lists, checker, ranges } = routed;
+        // The part that adds a robot's corrections: the one whose share of
+        // the blocks ([`Self::per_block`]) holds the robot's.
+        let blocks = n.div_ceil(ROBOT_BLOCK);
+        let adder = |robot: usize| owner(robot / ROBOT_BLOCK, size, blocks);
         let (parts, lists) = (Disjoint::new(parts), Disjoint::new(lists));
         let (checker, ranges) = (Disjoint::new(checker), Disjoint::new(ranges));
         crew.run(&|part| {
@@ -170,7 +173,7 @@ impl Projection {
                 }
                 for &pair in pairs {
                     if !first {
-                        check.hits::<D>(pair, scratch, lists, adder);
+                        check.hits::<D>(pair, scratch, lists, &adder);
                     } else if check.violates::<D>(pair, scratch) {
                         *mine = Some(pair);
                         found.store(true, Ordering::Relaxed);

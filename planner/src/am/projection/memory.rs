@@ -129,8 +129,6 @@ pub(super) struct Routed {
     /// Per chunk and adding part (`chunk * parts + part`), the range of the
     /// chunk's hits in its checker's list for that part.
     pub(super) ranges: Vec<[u32; 2]>,
-    /// Per robot, the part that adds its corrections.
-    pub(super) adder: Vec<u32>,
 }
 
 impl Routed {
@@ -146,17 +144,8 @@ impl Routed {
         }
     }
 
-    /// Ready for a step of `chunks` chunks on `parts` parts of a team of
-    /// `n` robots, whose blocks part `p` adds `share(p, parts, blocks)` of.
-    pub(super) fn prepare(&mut self, n: usize, parts: usize, chunks: usize) {
-        let blocks = n.div_ceil(ROBOT_BLOCK);
-        self.adder.clear();
-        self.adder.resize(n, 0);
-        for part in 0..parts {
-            for b in crate::crew::share(part, parts, blocks) {
-                self.adder[block_robots(b, n)].fill(part as u32);
-            }
-        }
+    /// Ready for a step of `chunks` chunks on `parts` parts.
+    pub(super) fn prepare(&mut self, parts: usize, chunks: usize) {
         self.checker.resize(chunks, 0);
         self.ranges.resize(chunks * parts, [0; 2]);
     }
