@@ -3,10 +3,33 @@
 //! that declares `mod counting;` counts its own).
 
 use std::alloc::{GlobalAlloc, Layout, System};
+use std::cell::Cell;
 use std::sync::atomic::{AtomicUsize, Ordering};
 
-/// Allocations and reallocations so far in this test binary.
+/// Allocations and reallocations so far in this test binary, on every
+/// thread.
+#[allow(dead_code)]
 pub static ALLOCATIONS: AtomicUsize = AtomicUsize::new(0);
+
+thread_local! {
+    /// Allocations and reallocations so far on this thread.
+    static HERE: Cell<usize> = const { Cell::new(0) };
+}
+
+/// Allocations and reallocations so far on the calling thread: a count
+/// that threads the process runs beside it (a background solver, a cold
+/// planner) cannot change.
+#[allow(dead_code)]
+pub fn on_this_thread() -> usize {
+    HERE.with(Cell::get)
+}
+
+/// Counts one allocation or reallocation.
+fn count() {
+    ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
+    // A thread being torn down has no counter left: only the total counts.
+    let _ = HERE.try_with(|here| here.set(here.get() + 1));
+}
 
 /// The system allocator, counting allocations and reallocations.
 struct Counting;
@@ -14,19 +37,19 @@ struct Counting;
 // SAFETY: forwards every call to the system allocator unchanged.
 unsafe impl GlobalAlloc for Counting {
     unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
+        count();
         // SAFETY: forwarded.
         unsafe { System.alloc(layout) }
     }
 
     unsafe fn alloc_zeroed(&self, layout: Layout) -> *mut u8 {
-        ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
+        count();
         // SAFETY: forwarded.
         unsafe { System.alloc_zeroed(layout) }
     }
 
     unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-        ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
+        count();
         // SAFETY: forwarded.
         unsafe { System.realloc(ptr, layout, new_size) }
     }
