@@ -13,7 +13,12 @@
 //! - [`Family::ObstacleField`]: two groups in counterflow through a field of
 //!   pillars (static obstacles);
 //! - [`Family::Formation`]: from a grid to a ring (2D) or a sphere (3D),
-//!   each robot to a seeded place of the other shape.
+//!   each robot to a seeded place of the other shape;
+//! - clutter ([`clutter`]): [`Family::Doorway`] (two rooms, one or two
+//!   doors, the halves of the team swap rooms), [`Family::Aisles`]
+//!   (warehouse shelves, robots from one aisle to another) and
+//!   [`Family::PillarForest`] (pillars over the whole workspace), with
+//!   passages of 1.5-2.5 robot diameters.
 //!
 //! ```
 //! use flowopt_planner::problem::Dim;
@@ -33,6 +38,8 @@ use serde::{Deserialize, Serialize};
 
 use crate::problem::{Dim, Obstacle, Problem, Spheroid, StartState, Team, Workspace};
 use crate::scenario::{RandomScenario, ScenarioError, ring_point};
+
+mod clutter;
 
 /// Spacing of robots placed in formations, in separations.
 const SPACING: f64 = 1.4;
@@ -60,12 +67,27 @@ pub enum Family {
     ObstacleField,
     /// Grid to ring (or sphere).
     Formation,
+    /// Two rooms swapping through one or two doors.
+    Doorway,
+    /// Warehouse aisles.
+    Aisles,
+    /// A dense pillar forest.
+    PillarForest,
 }
 
 impl Family {
     /// Every family, in report order.
-    pub const ALL: [Family; 6] =
-        [Family::Random, Family::Crowd, Family::Swap, Family::Crossing, Family::ObstacleField, Family::Formation];
+    pub const ALL: [Family; 9] = [
+        Family::Random,
+        Family::Crowd,
+        Family::Swap,
+        Family::Crossing,
+        Family::ObstacleField,
+        Family::Formation,
+        Family::Doorway,
+        Family::Aisles,
+        Family::PillarForest,
+    ];
 
     /// Whether its scenes take [`Scene::obstacles`] random obstacles (the
     /// others place their own, or none).
@@ -82,6 +104,9 @@ impl Family {
             Family::Crossing => "crossing",
             Family::ObstacleField => "obstacle-field",
             Family::Formation => "formation",
+            Family::Doorway => "doorway",
+            Family::Aisles => "aisles",
+            Family::PillarForest => "pillar-forest",
         }
     }
 }
@@ -168,6 +193,9 @@ impl Scene {
             Family::Crossing => (self.crossing(w, &mut rng)?, 0.0),
             Family::ObstacleField => (self.obstacle_field(w, &mut rng)?, 0.0),
             Family::Formation => (self.formation(w, &mut rng)?, 0.0),
+            Family::Doorway => (self.doorway(w, &mut rng)?, 0.0),
+            Family::Aisles => (self.aisles(w, &mut rng)?, 0.0),
+            Family::PillarForest => (self.pillar_forest(w, &mut rng)?, 0.0),
         };
         problem.validate()?;
         let params = SceneParams {

@@ -44,6 +44,12 @@ pub enum FamilyArg {
     ObstacleField,
     /// Grid to ring (or sphere).
     Formation,
+    /// Two rooms swapping through one or two doors.
+    Doorway,
+    /// Warehouse aisles.
+    Aisles,
+    /// A dense pillar forest.
+    PillarForest,
 }
 
 impl From<FamilyArg> for Family {
@@ -55,6 +61,9 @@ impl From<FamilyArg> for Family {
             FamilyArg::Crossing => Family::Crossing,
             FamilyArg::ObstacleField => Family::ObstacleField,
             FamilyArg::Formation => Family::Formation,
+            FamilyArg::Doorway => Family::Doorway,
+            FamilyArg::Aisles => Family::Aisles,
+            FamilyArg::PillarForest => Family::PillarForest,
         }
     }
 }

@@ -18,7 +18,7 @@ use crate::offline::harness::Record;
 use crate::offline::stats::{mean, quantile};
 
 /// The scene-family rows of table 7: family and robots (2D).
-const FAMILY_ROWS: [(Family, usize); 8] = [
+const FAMILY_ROWS: [(Family, usize); 11] = [
     (Family::Swap, 16),
     (Family::Swap, 32),
     (Family::Swap, 64),
@@ -27,6 +27,9 @@ const FAMILY_ROWS: [(Family, usize); 8] = [
     (Family::Crowd, 64),
     (Family::ObstacleField, 16),
     (Family::Formation, 16),
+    (Family::Doorway, 16),
+    (Family::Aisles, 16),
+    (Family::PillarForest, 16),
 ];
 
 /// The methods of table 7, in table order.
@@ -103,7 +106,10 @@ pub(super) fn family_table(runs: &mut Runs, command: &str) -> Result<String> {
          the workspace grown with the team to keep the 16-robot benchmark's density: **swap** the antipodal \
          swap on a circle rotated by the seed, **crossing** two groups crossing at right angles in the middle, \
          **crowd** uniform random starts and goals, **obstacle-field** two groups in counterflow through a \
-         field of pillars, **formation** from a grid to a ring. Instances per row: {count} (seeds {}..{}; at \
+         field of pillars, **formation** from a grid to a ring, and the clutter families, passages of 1.5-2.5 \
+         robot diameters between obstacle surfaces: **doorway** two rooms swapping through one or two doors, \
+         **aisles** robots from one warehouse aisle to another, **pillar-forest** pillars over the whole \
+         workspace. Instances per row: {count} (seeds {}..{}; at \
          most {SCENE_CAP}, these scenes are slower), planned one at a time without the residual study. \
          **auto** races the baseline and the learned pipeline (refining on one thread) on two threads, the \
          first verified plan winning, for teams of up to 32 robots (above, the baseline plans alone); its \
