@@ -34,6 +34,14 @@ pub enum ScenarioError {
         /// Its index.
         index: usize,
     },
+    /// A scene family's smallest team is larger.
+    #[error("ScenarioError::TooFewRobots: {family} scenes are for teams of at least {least} robots")]
+    TooFewRobots {
+        /// The family's name.
+        family: &'static str,
+        /// Its smallest team.
+        least: usize,
+    },
     /// The produced or loaded problem is invalid.
     #[error("ScenarioError::Invalid: {0}")]
     Invalid(#[from] ProblemError),

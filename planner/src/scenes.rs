@@ -14,11 +14,11 @@
 //!   pillars (static obstacles);
 //! - [`Family::Formation`]: from a grid to a ring (2D) or a sphere (3D),
 //!   each robot to a seeded place of the other shape;
-//! - clutter ([`clutter`]): [`Family::Doorway`] (two rooms, one or two
-//!   doors, the halves of the team swap rooms), [`Family::Aisles`]
-//!   (warehouse shelves, robots from one aisle to another) and
-//!   [`Family::PillarForest`] (pillars over the whole workspace), with
-//!   passages of 1.5-2.5 robot diameters.
+//! - clutter (`scenes/clutter.rs`), teams of at least 8: [`Family::Doorway`]
+//!   (two rooms, one or two doors, the halves of the team swap rooms),
+//!   [`Family::Aisles`] (warehouse shelves, robots to another aisle or a
+//!   cross-aisle) and [`Family::PillarForest`] (pillars over the whole
+//!   workspace), with passages of 1.5-2.5 robot diameters.
 //!
 //! ```
 //! use flowopt_planner::problem::Dim;
@@ -241,6 +241,9 @@ impl Scene {
     /// (rows along the other horizontal axis and, in 3D, layers in z)
     /// centred at `centre`, with a seeded jitter of a tenth of a separation.
     fn block(&self, count: usize, centre: Vector3<f64>, across: usize, rng: &mut ChaCha8Rng) -> Vec<Vector3<f64>> {
+        if count == 0 {
+            return Vec::new();
+        }
         let team = Team::default_for(self.dim, 1);
         let (a, b) = team.separation();
         let (pitch, lift) = (SPACING * a, SPACING * b);
@@ -312,19 +315,21 @@ impl Scene {
             .map(|k| {
                 let (x, y) = centre(k);
                 let jitter = 0.1 * PILLAR_RADIUS;
-                Obstacle {
-                    position: point(
-                        dim,
-                        x + rng.random_range(-jitter..=jitter),
-                        y + rng.random_range(-jitter..=jitter),
-                        0.0,
-                    ),
-                    velocity: Vector3::zeros(),
-                    shape: Spheroid { radius: PILLAR_RADIUS, half_height: 2.0 * w },
-                }
+                let (x, y) = (x + rng.random_range(-jitter..=jitter), y + rng.random_range(-jitter..=jitter));
+                self.column(x, y, PILLAR_RADIUS, w)
             })
             .collect();
         fit(team, starts, goals, obstacles)
+    }
+
+    /// A static column of `radius` at `(x, y)` (a disc in 2D), as tall as
+    /// the workspace of half-width `w` in 3D.
+    fn column(&self, x: f64, y: f64, radius: f64, w: f64) -> Obstacle {
+        Obstacle {
+            position: point(self.dim, x, y, 0.0),
+            velocity: Vector3::zeros(),
+            shape: Spheroid { radius, half_height: 2.0 * w },
+        }
     }
 
     /// From a grid in the middle to a ring (sphere) around it, each robot

@@ -10,8 +10,8 @@ use nalgebra::Vector3;
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 
-use super::{SPACING, Scene, fit, point, team_in};
-use crate::problem::{Obstacle, Problem, Spheroid, Team, scaled_norm};
+use super::{Family, SPACING, Scene, fit, point, team_in};
+use crate::problem::{Obstacle, Problem, Team, scaled_norm};
 use crate::scenario::ScenarioError;
 
 /// Radius of the discs walls and shelves are made of (m).
@@ -20,7 +20,7 @@ const WALL_RADIUS: f64 = 0.08;
 /// overlap, and the gap a robot would need between two is never there.
 const WALL_PITCH: f64 = 1.6;
 /// Radius of a forest's pillars (m).
-const PILLAR_RADIUS: f64 = 0.08;
+const FOREST_PILLAR_RADIUS: f64 = 0.08;
 /// The narrowest and widest passage, in robot diameters.
 const PASSAGE: (f64, f64) = (1.5, 2.5);
 /// Room a start or goal keeps from an obstacle's surface beyond touching,
@@ -28,20 +28,13 @@ const PASSAGE: (f64, f64) = (1.5, 2.5);
 const CLEARANCE: f64 = 0.5;
 /// Draws of a free place before a scene is declared too dense.
 const DRAWS: usize = 20_000;
+/// The smallest team of a clutter scene: below, the rooms and aisles of a
+/// workspace at the benchmark's density are narrower than the passages.
+pub const MIN_ROBOTS: usize = 8;
 
 /// A seeded passage width between obstacle surfaces (m).
 fn passage(team: &Team, rng: &mut ChaCha8Rng) -> f64 {
     rng.random_range(PASSAGE.0..=PASSAGE.1) * team.separation().0
-}
-
-/// A static column of `radius` at `(x, y)`, as tall as a workspace of
-/// half-width `w`.
-fn column(scene: &Scene, x: f64, y: f64, radius: f64, w: f64) -> Obstacle {
-    Obstacle {
-        position: point(scene.dim, x, y, 0.0),
-        velocity: Vector3::zeros(),
-        shape: Spheroid { radius, half_height: 2.0 * w },
-    }
 }
 
 /// The discs of a wall along y at `x` from `y0` to `y1` (disc centres;
@@ -54,7 +47,7 @@ fn wall_y(scene: &Scene, x: f64, y0: f64, y1: f64, w: f64) -> Vec<Obstacle> {
     (0..count)
         .map(|k| {
             let y = if count == 1 { y0 } else { y0 + (y1 - y0) * k as f64 / (count - 1) as f64 };
-            column(scene, x, y, WALL_RADIUS, w)
+            scene.column(x, y, WALL_RADIUS, w)
         })
         .collect()
 }
@@ -99,10 +92,19 @@ fn free_places(
 }
 
 impl Scene {
+    /// [`ScenarioError::TooFewRobots`] below [`MIN_ROBOTS`].
+    fn enough_for_clutter(&self, family: Family) -> Result<(), ScenarioError> {
+        if self.robots < MIN_ROBOTS {
+            return Err(ScenarioError::TooFewRobots { family: family.name(), least: MIN_ROBOTS });
+        }
+        Ok(())
+    }
+
     /// Two rooms and the wall between them, with one or two doors (seeded):
     /// the two halves of the team swap rooms, each robot to the mirror of
     /// its start across the wall.
     pub(super) fn doorway(&self, w: f64, rng: &mut ChaCha8Rng) -> Result<Problem, ScenarioError> {
+        self.enough_for_clutter(Family::Doorway)?;
         let (dim, n) = (self.dim, self.robots);
         let half = n / 2;
         let team = team_in(dim, n, w);
@@ -140,9 +142,11 @@ impl Scene {
     }
 
     /// Warehouse aisles: two to four shelves (rows of discs along x,
-    /// seeded) with aisles between them and cross-aisles at both ends;
-    /// each robot goes from a place in one aisle to a place in another.
+    /// seeded) with aisles between them and cross-aisles as wide at both
+    /// ends; each robot goes from a seeded place to one in another aisle
+    /// (or beyond the outer shelves), or to one in a cross-aisle.
     pub(super) fn aisles(&self, w: f64, rng: &mut ChaCha8Rng) -> Result<Problem, ScenarioError> {
+        self.enough_for_clutter(Family::Aisles)?;
         let (dim, n) = (self.dim, self.robots);
         // Shelves take room: the workspace is 15% wider than the
         // density's.
@@ -158,10 +162,9 @@ impl Scene {
         for s in 0..shelves {
             let y = shelf_y(s);
             let count = (2.0 * length / (WALL_PITCH * WALL_RADIUS)).ceil() as usize + 1;
-            debug_assert!(count >= 2);
             for k in 0..count {
                 let x = -length + 2.0 * length * k as f64 / (count - 1) as f64;
-                obstacles.push(column(self, x, y, WALL_RADIUS, w));
+                obstacles.push(self.column(x, y, WALL_RADIUS, w));
             }
         }
         // The band (aisle, or beyond the outer shelves) a place is in.
@@ -179,20 +182,24 @@ impl Scene {
 
     /// A pillar forest: pillars on a jittered square grid over the whole
     /// workspace with passages of 1.5-2.5 robot diameters between them
-    /// (seeded), robots from seeded places to seeded places among them.
+    /// (seeded; up to 0.16 diameters wider with the jitter, and the strips
+    /// between the outer pillars and the workspace's sides from half a
+    /// passage up), robots from seeded places to seeded places among them
+    /// at least a half-width away.
     pub(super) fn pillar_forest(&self, w: f64, rng: &mut ChaCha8Rng) -> Result<Problem, ScenarioError> {
+        self.enough_for_clutter(Family::PillarForest)?;
         let (dim, n) = (self.dim, self.robots);
         let team = team_in(dim, n, w);
-        let jitter = 0.1 * PILLAR_RADIUS;
+        let jitter = 0.1 * FOREST_PILLAR_RADIUS;
         // Jittered pillars keep the passage drawn between them.
-        let pitch = passage(&team, rng) + 2.0 * (PILLAR_RADIUS + jitter);
+        let pitch = passage(&team, rng) + 2.0 * (FOREST_PILLAR_RADIUS + jitter);
         let per_axis = ((2.0 * w / pitch) as usize).max(1);
         let mut obstacles = Vec::new();
         for i in 0..per_axis {
             for j in 0..per_axis {
                 let at = |k: usize| (k as f64 - (per_axis - 1) as f64 / 2.0) * pitch;
                 let (x, y) = (at(i) + rng.random_range(-jitter..=jitter), at(j) + rng.random_range(-jitter..=jitter));
-                obstacles.push(column(self, x, y, PILLAR_RADIUS, w));
+                obstacles.push(self.column(x, y, FOREST_PILLAR_RADIUS, w));
             }
         }
         let starts = free_places(&team, &obstacles, n, "start", rng, |_, _| true)?;
@@ -253,18 +260,40 @@ mod tests {
     }
 
     #[test]
-    fn a_doorway_wall_is_closed_but_for_its_doors() {
-        let (problem, _) = Scene::new(Family::Doorway, Dim::Two, 16, 5).generate().unwrap();
-        let d = problem.team.separation().0;
-        // Along the wall, the free gaps a robot could pass are the doors,
-        // 1.5-2.5 diameters each.
-        let mut ys: Vec<f64> = problem.obstacles.iter().map(|o| o.position.y).collect();
-        ys.sort_by(f64::total_cmp);
-        let doors: Vec<f64> =
-            ys.windows(2).map(|p| (p[1] - p[0] - 2.0 * WALL_RADIUS) / d).filter(|g| *g > 0.0).collect();
-        assert!((1..=2).contains(&doors.len()), "{doors:?}");
-        assert!(doors.iter().all(|g| (PASSAGE.0 - 1e-9..=PASSAGE.1 + 1e-9).contains(g)), "{doors:?}");
-        // Every robot crosses it.
-        assert!(problem.starts.iter().zip(&problem.goals).all(|(s, g)| s.position.x * g.x < 0.0));
+    fn a_doorway_wall_spans_the_workspace_and_is_closed_but_for_its_doors() {
+        for dim in [Dim::Two, Dim::Three] {
+            for seed in 0..8 {
+                let (problem, _) = Scene::new(Family::Doorway, dim, 16, seed).generate().unwrap();
+                let (d, w) = (problem.team.separation().0, problem.team.workspace.max.y);
+                let mut ys: Vec<f64> = problem.obstacles.iter().map(|o| o.position.y).collect();
+                ys.sort_by(f64::total_cmp);
+                assert!(problem.obstacles.iter().all(|o| o.position.x == 0.0), "one wall");
+                assert_eq!((ys[0], ys[ys.len() - 1]), (-w, w), "from side to side");
+                // Along the wall, the free gaps a robot could pass are the
+                // doors, 1.5-2.5 diameters each.
+                let doors: Vec<f64> =
+                    ys.windows(2).map(|p| (p[1] - p[0] - 2.0 * WALL_RADIUS) / d).filter(|g| *g > 0.0).collect();
+                assert!((1..=2).contains(&doors.len()), "{doors:?}");
+                assert!(doors.iter().all(|g| (PASSAGE.0 - 1e-9..=PASSAGE.1 + 1e-9).contains(g)), "{doors:?}");
+                // Every robot crosses it.
+                assert!(problem.starts.iter().zip(&problem.goals).all(|(s, g)| s.position.x * g.x < 0.0));
+            }
+        }
+    }
+
+    #[test]
+    fn starts_and_goals_keep_their_room_from_obstacles_and_small_teams_are_refused() {
+        for family in [Family::Doorway, Family::Aisles, Family::PillarForest] {
+            let (problem, _) = Scene::new(family, Dim::Two, 16, 1).generate().unwrap();
+            let r = problem.team.robot.radius;
+            for p in problem.starts.iter().map(|s| s.position).chain(problem.goals.iter().copied()) {
+                for o in &problem.obstacles {
+                    let gap = (p - o.position).xy().norm() - o.shape.radius - r;
+                    assert!(gap >= CLEARANCE * r - 1e-9, "{family:?}: {gap}");
+                }
+            }
+            let small = Scene::new(family, Dim::Two, MIN_ROBOTS - 1, 1).generate();
+            assert!(matches!(small, Err(ScenarioError::TooFewRobots { least: MIN_ROBOTS, .. })), "{family:?}");
+        }
     }
 }
