@@ -163,6 +163,12 @@ fn team_in(dim: Dim, robots: usize, half: f64) -> Team {
     Team { workspace: Workspace::centred(half), ..Team::default_for(dim, robots) }.resolved_for_workspace()
 }
 
+/// How far the outer columns of [`Scene::block`]'s square of `count`
+/// robots `pitch` apart lie from its middle (m).
+fn block_half_width(count: usize, pitch: f64) -> f64 {
+    ((count as f64).sqrt().ceil() - 1.0) / 2.0 * pitch
+}
+
 /// A 2D or 3D point.
 fn point(dim: Dim, x: f64, y: f64, z: f64) -> Vector3<f64> {
     Vector3::new(x, y, if dim == Dim::Three { z } else { 0.0 })
@@ -273,7 +279,7 @@ impl Scene {
         let team = team_in(dim, n, w);
         // Far enough out that the two blocks keep clear of each other.
         let pitch = SPACING * team.separation().0;
-        let extent = ((half as f64).sqrt().ceil() - 1.0) / 2.0 * pitch;
+        let extent = block_half_width(half, pitch);
         let off = (0.55 * w).max(2.0 * extent + pitch);
         let mut starts = self.block(half, point(dim, -off, 0.0, 0.0), 0, rng);
         let mut goals: Vec<Vector3<f64>> = starts.iter().map(|p| point(dim, p.x + 2.0 * off, p.y, p.z)).collect();
@@ -304,7 +310,7 @@ impl Scene {
         let field = (0..pillars).map(|k| centre(k).0.abs()).fold(0.0, f64::max) + PILLAR_RADIUS;
         // The groups start clear of the field, facing each other across it.
         let pitch = SPACING * team.separation().0;
-        let extent = (((n - half) as f64).sqrt().ceil() - 1.0) / 2.0 * pitch;
+        let extent = block_half_width(n - half, pitch);
         let off = (0.7 * w).max(field + team.robot.radius + 0.05 + extent + pitch / 2.0);
         let mut starts = self.block(half, point(dim, -off, 0.0, 0.0), 1, rng);
         let right = self.block(n - half, point(dim, off, 0.0, 0.0), 1, rng);

@@ -10,7 +10,7 @@ use nalgebra::Vector3;
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 
-use super::{Family, SPACING, Scene, fit, point, team_in};
+use super::{Family, SPACING, Scene, block_half_width, fit, point, team_in};
 use crate::problem::{Obstacle, Problem, Team, scaled_norm};
 use crate::scenario::ScenarioError;
 
@@ -109,7 +109,7 @@ impl Scene {
         let half = n / 2;
         let team = team_in(dim, n, w);
         let pitch = SPACING * team.separation().0;
-        let extent = (((n - half) as f64).sqrt().ceil() - 1.0) / 2.0 * pitch;
+        let extent = block_half_width(n - half, pitch);
         let off = (0.55 * w).max(extent + WALL_RADIUS + team.robot.radius * (2.0 + CLEARANCE));
         let mut starts = self.block(half, point(dim, -off, 0.0, 0.0), 1, rng);
         let right = self.block(n - half, point(dim, off, 0.0, 0.0), 1, rng);
