@@ -163,6 +163,12 @@ fn team_in(dim: Dim, robots: usize, half: f64) -> Team {
     Team { workspace: Workspace::centred(half), ..Team::default_for(dim, robots) }.resolved_for_workspace()
 }
 
+/// How far a pillar of `radius` is moved from its place on each axis at
+/// most ([`Scene::pillar`]): a tenth of its radius.
+fn pillar_jitter(radius: f64) -> f64 {
+    0.1 * radius
+}
+
 /// How far the outer columns of [`Scene::block`]'s square of `count`
 /// robots `pitch` apart lie from its middle (m).
 fn block_half_width(count: usize, pitch: f64) -> f64 {
@@ -320,12 +326,18 @@ impl Scene {
         let obstacles = (0..pillars)
             .map(|k| {
                 let (x, y) = centre(k);
-                let jitter = 0.1 * PILLAR_RADIUS;
-                let (x, y) = (x + rng.random_range(-jitter..=jitter), y + rng.random_range(-jitter..=jitter));
-                self.column(x, y, PILLAR_RADIUS, w)
+                self.pillar(x, y, PILLAR_RADIUS, w, rng)
             })
             .collect();
         fit(team, starts, goals, obstacles)
+    }
+
+    /// A [`Self::column`] of `radius` at `(x, y)` moved by up to
+    /// [`pillar_jitter`] on each axis (seeded).
+    fn pillar(&self, x: f64, y: f64, radius: f64, w: f64, rng: &mut ChaCha8Rng) -> Obstacle {
+        let jitter = pillar_jitter(radius);
+        let (x, y) = (x + rng.random_range(-jitter..=jitter), y + rng.random_range(-jitter..=jitter));
+        self.column(x, y, radius, w)
     }
 
     /// A static column of `radius` at `(x, y)` (a disc in 2D), as tall as

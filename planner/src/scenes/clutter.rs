@@ -10,7 +10,7 @@ use nalgebra::Vector3;
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 
-use super::{Family, SPACING, Scene, block_half_width, fit, point, team_in};
+use super::{Family, SPACING, Scene, block_half_width, fit, pillar_jitter, point, team_in};
 use crate::problem::{Obstacle, Problem, Team, scaled_norm};
 use crate::scenario::ScenarioError;
 
@@ -190,16 +190,14 @@ impl Scene {
         self.enough_for_clutter(Family::PillarForest)?;
         let (dim, n) = (self.dim, self.robots);
         let team = team_in(dim, n, w);
-        let jitter = 0.1 * FOREST_PILLAR_RADIUS;
         // Jittered pillars keep the passage drawn between them.
-        let pitch = passage(&team, rng) + 2.0 * (FOREST_PILLAR_RADIUS + jitter);
+        let pitch = passage(&team, rng) + 2.0 * (FOREST_PILLAR_RADIUS + pillar_jitter(FOREST_PILLAR_RADIUS));
         let per_axis = ((2.0 * w / pitch) as usize).max(1);
         let mut obstacles = Vec::new();
         for i in 0..per_axis {
             for j in 0..per_axis {
                 let at = |k: usize| (k as f64 - (per_axis - 1) as f64 / 2.0) * pitch;
-                let (x, y) = (at(i) + rng.random_range(-jitter..=jitter), at(j) + rng.random_range(-jitter..=jitter));
-                obstacles.push(self.column(x, y, FOREST_PILLAR_RADIUS, w));
+                obstacles.push(self.pillar(at(i), at(j), FOREST_PILLAR_RADIUS, w, rng));
             }
         }
         let starts = free_places(&team, &obstacles, n, "start", rng, |_, _| true)?;
