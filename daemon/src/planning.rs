@@ -803,6 +803,37 @@ mod tests {
     }
 
     #[test]
+    fn a_robot_a_walker_comes_through_is_stopped_beside_its_track() {
+        let mut planner = TeamPlanner::preload(&config(8, "")).unwrap();
+        let problem = RandomScenario::new(planner.team().clone()).generate(11).unwrap();
+        let horizon = planner.stops.team().horizon;
+        // A walker at 0.4 m/s reaching a robot at rest 1.2 s from now (at
+        // the stopping horizon it is over where the robot would rest), its
+        // way there and on for 2.5 s clear of every other robot (a robot
+        // it runs into before the horizon has to be planned around it,
+        // which is another test's).
+        let velocity = Vector3::new(0.0, -0.4, 0.0);
+        let clear_of_the_others = |i: usize| {
+            let (from, to) = (problem.starts[i].position - velocity * 1.2, problem.starts[i].position + velocity * 2.5);
+            problem.starts.iter().enumerate().filter(|(j, _)| *j != i).all(|(_, s)| {
+                let along = ((s.position - from).dot(&(to - from)) / (to - from).norm_squared()).clamp(0.0, 1.0);
+                (s.position - (from + (to - from) * along)).norm() > 0.45
+            })
+        };
+        let i = (0..8).find(|i| clear_of_the_others(*i)).expect("a robot with a clear way to it");
+        let here = problem.starts[i].position;
+        let walker = Problem { obstacles: vec![obstacle(here - velocity * 1.2, velocity)], ..problem };
+        walker.validate().unwrap();
+        assert!((walker.obstacles[0].at(horizon) - here).norm() < 0.2, "the setup puts the walker on the robot");
+        let a = planner.observe(walker.clone(), 1_000_000_000, 1, Instant::now() + Duration::from_secs(1));
+        assert_eq!(a.follow, Follow::Stopping, "{a:?}");
+        clears(&planner, &walker, 1_000_000_000);
+        // Robot i rests beside the walker's track.
+        let rest = planner.held().unwrap().plan.at(horizon)[i].position;
+        assert!((rest.x - here.x).abs() > 0.2, "{rest:?} from {here:?}");
+    }
+
+    #[test]
     fn a_snapshot_whose_goals_cannot_be_planned_still_reports_the_world() {
         let mut planner = TeamPlanner::preload(&config(8, "")).unwrap();
         let problem = RandomScenario::new(planner.team().clone()).generate(11).unwrap();

@@ -225,6 +225,15 @@ fn simulate(args: &SimArgs, config: &DaemonConfig, team_config: &TeamConfig) -> 
     let day = args.lab.day();
     day.check().map_err(anyhow::Error::msg)?;
     let team = team_config.team()?;
+    // The braking bound of the plans the check reads (the goal and the
+    // stopping horizons), solved before the first tick: solved on first
+    // use, its linear programs (3-23 ms each) stalled control periods by
+    // up to 246 ms.
+    if let Some(a) = team.max_acceleration {
+        for horizon in [team.horizon, team_config.stop_horizon()] {
+            flowopt_planner::braking::prepare(team.degree, team.samples, horizon, a);
+        }
+    }
     // The contract's check of a followable answer: moving obstacles over
     // the daemon's shorter check window.
     let checked = Team { obstacle_prediction: Some(team_config.obstacle_check_s()), ..team.clone() };
@@ -312,7 +321,10 @@ fn simulate(args: &SimArgs, config: &DaemonConfig, team_config: &TeamConfig) -> 
         if key.is_some() && key != followed_key {
             let f = followed.as_ref().context("a followed plan")?;
             let (reported_ns, obstacles) = answered.and_then(|a| reported.answered_by(a)).unwrap_or((0, &[]));
-            if let Err(failure) = check(&checked, f, &robots.position, simulated_ns, obstacles, reported_ns) {
+            let checking = Instant::now();
+            let checked_plan = check(&checked, f, &robots.position, simulated_ns, obstacles, reported_ns);
+            report.check_max_ms = report.check_max_ms.max(checking.elapsed().as_secs_f64() * 1e3);
+            if let Err(failure) = checked_plan {
                 warn!(status = ?f.status, plan_sequence = f.plan_sequence, "followed a plan that fails the check: {failure:?}");
                 let through = matches!(failure, Failure::ThroughObstacle(_));
                 counters.each(t, |tally| {

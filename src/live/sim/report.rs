@@ -41,6 +41,9 @@ pub struct SimReport {
     pub latency_p999_ms: f64,
     /// Maximum (ms).
     pub latency_max_ms: f64,
+    /// Longest the simulator's own check of a followed plan held up its
+    /// control loop (ms).
+    pub check_max_ms: f64,
     /// New plans that were warm-started.
     pub warm: u64,
     /// The whole run.
@@ -83,6 +86,7 @@ pub fn print_report(r: &SimReport) {
         "followed         unverified {} (through a reported obstacle {})",
         t.followed_unverified, t.followed_through_obstacle
     );
+    println!("own check        max {:.2} ms", r.check_max_ms);
     println!("answer time      max {:.2} ms, {} after the deadline", t.answer_max_ms, t.late_answers);
     println!("without a plan   longest {:.0} ms", t.longest_without_plan_ms);
     println!("tracking error   mean {:.4} m, max {:.4} m", r.mean_tracking_error_m, r.max_tracking_error_m);
