@@ -10,7 +10,7 @@ use flowopt_planner::am::{AmSettings, Budget, Stop};
 use flowopt_planner::metrics::DENSE_FACTOR;
 use flowopt_planner::plan::JointPlan;
 use flowopt_planner::problem::Problem;
-use flowopt_planner::stopping::stopping_problem;
+use flowopt_planner::stopping::{stepped_aside, stopping_problem};
 use tracing::{debug, info_span};
 
 use crate::answer::{Answer, Why};
@@ -83,18 +83,24 @@ impl TeamPlanner {
         let _span = info_span!("stopping").entered();
         let t = Instant::now();
         let inset = self.team.robot.radius * AmSettings::safety_filter().margin;
-        let stop = stopping_problem(&world.problem, self.stops.team().horizon, inset);
-        let engine = self.stops.get(stop.obstacles.len())?;
-        let sample = self.stop_reference.coefficients(&stop);
-        // Validated by `prepare`; why there is none is worth a line
-        // (a stopping point in a walker's track was 364 in 40 s).
-        let prepared = match engine.prepare(&stop, Some(&sample)) {
-            Ok(p) => p,
-            Err(e) => {
-                debug!("no stopping plan: {e}");
-                return None;
+        let plain = stopping_problem(&world.problem, self.stops.team().horizon, inset);
+        let engine = self.stops.get(plain.obstacles.len())?;
+        // Stopping points stepped aside from obstacles' tracks and from each
+        // other; the plain ones where a move made the problem invalid (a
+        // point pushed into another obstacle). Validated by `prepare`; why
+        // there is none is worth a line (before the step: 397 in 40 s of
+        // the 64-robot lab, docs/experiments/2026-11-27-stopping-beside-walkers.md).
+        let aside = Some(stepped_aside(&plain, inset)).filter(|a| a.goals != plain.goals);
+        let (stop, prepared) = aside.into_iter().chain([plain]).find_map(|stop| {
+            let sample = self.stop_reference.coefficients(&stop);
+            match engine.prepare(&stop, Some(&sample)) {
+                Ok(prepared) => Some((stop, prepared)),
+                Err(e) => {
+                    debug!("no stopping plan: {e}");
+                    None
+                }
             }
-        };
+        })?;
         let outcome = engine.run_within(&prepared, engine.cold_start(&prepared), &Budget::until(until));
         answer.stages.filter += t.elapsed();
         answer.iterations += outcome.iterations;

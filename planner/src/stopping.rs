@@ -7,12 +7,14 @@
 //! other problem, it gives robots that left their plan a way to rest
 //! that is checked against each other and the obstacles.
 //!
-//! A stopping point that an obstacle is predicted to cover while the robot
-//! rests there (from `T_s` to the end of the obstacle's prediction,
-//! [`Team::predicted_until`]: a walker coming through) is moved out of
-//! the obstacle's track, sideways to it, and stopping points that overlap
-//! are moved apart, each to [`REST_CLEARANCE`] (scaled): the robot steps
-//! aside instead of the team having no stopping plan at all.
+//! [`stepped_aside`]: a stopping point that a moving obstacle is predicted
+//! to cover while the robot rests there (from `T_s` to the end of the
+//! obstacle's prediction, [`Team::predicted_until`]: a walker coming
+//! through) is moved out of the obstacle's track, sideways to it, on the
+//! side it lies; one within a static obstacle is moved out of it towards
+//! the robot's start (it stops short); stopping points that
+//! overlap are moved apart; each to [`REST_CLEARANCE`] (scaled): the robot
+//! steps aside instead of the team having no stopping plan at all.
 
 use nalgebra::Vector3;
 
@@ -34,81 +36,120 @@ pub fn stopping_team(team: &Team, horizon: f64) -> Team {
 
 /// The problem of bringing every robot of `problem` to rest over
 /// `horizon` seconds along its motion, each stopping point kept `inset`
-/// metres inside the workspace and moved out of obstacles' tracks and
-/// apart from the others (the module's doc). Not validated: stopping
-/// points may still overlap (a crowd against a wall), which
-/// [`Problem::validate`] then reports.
+/// metres inside the workspace. Not validated: stopping points may
+/// overlap, which [`Problem::validate`] then reports.
 pub fn stopping_problem(problem: &Problem, horizon: f64, inset: f64) -> Problem {
     let team = stopping_team(&problem.team, horizon);
-    let inside = |g: &mut Vector3<f64>| {
-        for a in 0..team.dim.axes() {
-            let (lo, hi) = (team.workspace.min[a] + inset, team.workspace.max[a] - inset);
-            g[a] = if lo <= hi { g[a].clamp(lo, hi) } else { (lo + hi) / 2.0 };
-        }
-    };
-    let mut goals: Vec<Vector3<f64>> = problem
+    let goals = problem
         .starts
         .iter()
         .map(|s| {
             let mut g = s.position + s.velocity * (horizon / 2.0);
-            inside(&mut g);
+            inside(&team, inset, &mut g);
             g
         })
         .collect();
+    Problem { team, starts: problem.starts.clone(), goals, obstacles: problem.obstacles.clone() }
+}
+
+/// The stopping problem `stop` ([`stopping_problem`], its points `inset`
+/// metres inside the workspace) with its points moved out of obstacles'
+/// tracks and apart (the module's doc). A move can land a point in
+/// another obstacle: where this one is invalid and `stop` is not, plan
+/// `stop`.
+pub fn stepped_aside(stop: &Problem, inset: f64) -> Problem {
+    let team = &stop.team;
+    let mut goals = stop.goals.clone();
     for _ in 0..REST_ROUNDS {
         let mut moved = false;
-        for g in goals.iter_mut() {
-            for o in &problem.obstacles {
-                moved |= step_aside(&team, o, g, &inside);
+        for (g, s) in goals.iter_mut().zip(&stop.starts) {
+            for o in &stop.obstacles {
+                moved |= step_aside(team, inset, o, s.position, g);
             }
         }
-        moved |= spread(&team, &mut goals);
-        goals.iter_mut().for_each(inside);
+        moved |= spread(team, &mut goals);
+        goals.iter_mut().for_each(|g| inside(team, inset, g));
         if !moved {
             break;
         }
     }
-    Problem { team, starts: problem.starts.clone(), goals, obstacles: problem.obstacles.clone() }
+    Problem { goals, ..stop.clone() }
 }
 
-/// Moves the stopping point `g` of `team` (its horizon the stopping
-/// horizon) to [`REST_CLEARANCE`] from obstacle `o`'s track while the
-/// robot rests there, if it is closer, and `inside` the box: to the other
-/// side of the track where the box leaves more room there; whether it
-/// moved.
-fn step_aside(team: &Team, o: &Obstacle, g: &mut Vector3<f64>, inside: &impl Fn(&mut Vector3<f64>)) -> bool {
+/// `g` kept `inset` metres inside `team`'s workspace.
+fn inside(team: &Team, inset: f64, g: &mut Vector3<f64>) {
+    for a in 0..team.dim.axes() {
+        let (lo, hi) = (team.workspace.min[a] + inset, team.workspace.max[a] - inset);
+        g[a] = if lo <= hi { g[a].clamp(lo, hi) } else { (lo + hi) / 2.0 };
+    }
+}
+
+/// Moves the stopping point `g` of the robot starting at `start` (the
+/// team's horizon the stopping horizon) to [`REST_CLEARANCE`] from
+/// obstacle `o`'s track while the robot rests there (the obstacle itself
+/// where it is static), if it is closer: on the side of the track it
+/// lies (towards the start from a static obstacle), or the other where
+/// the box (`inset` inside it) leaves less than the separation there;
+/// whether it moved.
+fn step_aside(team: &Team, inset: f64, o: &Obstacle, start: Vector3<f64>, g: &mut Vector3<f64>) -> bool {
     let until = team.predicted_until(&o.velocity);
     if team.horizon > until {
         return false;
     }
-    // The track from the horizon to the prediction's end (the obstacle
-    // itself where it is static).
+    let (a, b) = team.obstacle_separation(&o.shape);
+    let scaled = |v: &Vector3<f64>| Vector3::new(v.x / a, v.y / a, if team.dim == Dim::Three { v.z / b } else { 0.0 });
+    let room = |p: &Vector3<f64>, c: &Vector3<f64>| scaled(&(p - c)).norm();
+    // The point of the track from the horizon to the prediction's end
+    // nearest to `g`, in the scaled metric the separation is measured in.
     let from = o.at(team.horizon);
     let along = if until.is_finite() { o.velocity * (until - team.horizon) } else { Vector3::zeros() };
-    let share =
-        if along.norm_squared() > 0.0 { ((*g - from).dot(&along) / along.norm_squared()).clamp(0.0, 1.0) } else { 0.0 };
+    let (sa, sd) = (scaled(&along), scaled(&(*g - from)));
+    let share = if sa.norm_squared() > 0.0 { (sd.dot(&sa) / sa.norm_squared()).clamp(0.0, 1.0) } else { 0.0 };
     let closest = from + along * share;
-    let (a, b) = team.obstacle_separation(&o.shape);
-    let mut aside = *g;
-    if !moved_to_clearance(team.dim, &mut aside, closest, a, b, along) {
+    if room(g, &closest) >= REST_CLEARANCE * (1.0 - 1e-9) {
         return false;
     }
-    let mut kept = aside;
-    inside(&mut kept);
-    if kept != aside {
-        let mut other = 2.0 * closest - aside;
-        inside(&mut other);
-        let room = |p: &Vector3<f64>| scaled_norm(team.dim, &(p - closest), a, b);
-        if room(&other) > room(&kept) {
+    // Which way: from a track, on the side the point lies (a robot
+    // crossing it rests beyond it, braking no harder); from a static
+    // obstacle (or from the track itself), towards the start; else away,
+    // or across the track.
+    let (d, back) = (*g - closest, start - closest);
+    let epsilon = 1e-9;
+    let moving = along.norm() > 0.0;
+    let across = Vector3::new(-along.y, along.x, 0.0);
+    let dir = if moving && scaled(&d).norm() > epsilon {
+        d
+    } else if scaled(&back).norm() > epsilon {
+        back
+    } else if scaled(&d).norm() > epsilon {
+        d
+    } else if across.norm() > 0.0 {
+        across
+    } else {
+        Vector3::new(1.0, 0.0, 0.0)
+    };
+    let at_clearance = |dir: Vector3<f64>| {
+        let mut p = closest + dir * (REST_CLEARANCE / scaled(&dir).norm());
+        inside(team, inset, &mut p);
+        p
+    };
+    let mut kept = at_clearance(dir);
+    if room(&kept, &closest) < 1.0 {
+        let other = at_clearance(-dir);
+        if room(&other, &closest) > room(&kept, &closest) {
             kept = other;
         }
     }
+    let moved = kept != *g;
     *g = kept;
-    true
+    moved
 }
 
 /// Moves stopping points closer than the separation apart, each pair's
-/// two by half; whether any moved.
+/// two by half, to [`REST_CLEARANCE`]; whether any moved. (Points at 1
+/// to 1.1 separations from each other are left: robots at rest close
+/// together, a team stopped in a jam, keep where they are; an obstacle's
+/// track is a prediction and gets the whole clearance.)
 fn spread(team: &Team, goals: &mut [Vector3<f64>]) -> bool {
     let (a, b) = team.separation();
     let mut moved = false;
@@ -132,12 +173,12 @@ fn spread(team: &Team, goals: &mut [Vector3<f64>]) -> bool {
 
 /// Moves `g` away from `from` to [`REST_CLEARANCE`] times the separation
 /// `(a, b)` if it is closer (across `track`, a direction it lies along,
-/// when it is at `from`); whether it moved.
-fn moved_to_clearance(dim: Dim, g: &mut Vector3<f64>, from: Vector3<f64>, a: f64, b: f64, track: Vector3<f64>) -> bool {
+/// when it is at `from`).
+fn moved_to_clearance(dim: Dim, g: &mut Vector3<f64>, from: Vector3<f64>, a: f64, b: f64, track: Vector3<f64>) {
     let d = *g - from;
     let scaled = scaled_norm(dim, &d, a, b);
     if scaled >= REST_CLEARANCE {
-        return false;
+        return;
     }
     let d = if scaled > 1e-9 {
         d
@@ -147,7 +188,6 @@ fn moved_to_clearance(dim: Dim, g: &mut Vector3<f64>, from: Vector3<f64>, a: f64
         if across.norm() > 0.0 { across } else { Vector3::new(1.0, 0.0, 0.0) }
     };
     *g = from + d * (REST_CLEARANCE / scaled_norm(dim, &d, a, b));
-    true
 }
 
 #[cfg(test)]
@@ -185,8 +225,8 @@ mod tests {
     }
 
     /// Robot 0 at rest at the origin, robot 1 far from it, and a walker
-    /// (radius 0.1 m) 0.6 m to the left coming through robot 0 at 0.4 m/s,
-    /// predicted for 3.5 s.
+    /// (radius 0.1 m) 0.4 m to the left coming through robot 0 at 0.4 m/s,
+    /// predicted for 3.5 s: at a 1 s stopping horizon it is over robot 0.
     fn walker_through() -> Problem {
         let team = Team { obstacle_prediction: Some(3.5), ..Team::default_for(Dim::Two, 2) };
         let at = |x: f64, y: f64| Vector3::new(x, y, 0.0);
@@ -195,31 +235,34 @@ mod tests {
             starts: vec![StartState::at_rest(at(0.0, 0.0)), StartState::at_rest(at(0.7, 0.7))],
             goals: vec![at(0.5, 0.5), at(-0.5, -0.5)],
             obstacles: vec![Obstacle {
-                position: at(-0.6, 0.01),
+                position: at(-0.4, 0.01),
                 velocity: at(0.4, 0.0),
                 shape: crate::problem::Spheroid::ball(0.1),
             }],
         }
     }
 
+    /// The stopping problem of `problem` over 1 s, and stepped aside.
+    fn both(problem: &Problem) -> (Problem, Problem) {
+        let plain = stopping_problem(problem, 1.0, 0.005);
+        let aside = stepped_aside(&plain, 0.005);
+        (plain, aside)
+    }
+
     #[test]
     fn a_robot_a_walker_comes_through_steps_aside_and_the_others_stay() {
         let problem = walker_through();
-        let stop = stopping_problem(&problem, 1.0, 0.005);
-        // Where it stood the walker is at 1.5 s: it rests beside the track,
-        // across it (on the side it stood, below), clear of the whole track.
+        let (plain, stop) = both(&problem);
+        // Where it would rest the walker is at the horizon: refused.
+        assert!(matches!(plain.validate(), Err(crate::problem::ProblemError::GoalInObstacle { robot: 0, .. })));
+        // Stepped aside, it rests beside the track, on the side it stands
+        // (below), clear of the whole track.
         let g = stop.goals[0];
         assert!(g.x.abs() < 1e-9 && g.y < 0.0, "{g:?}");
         let (a, _) = stop.team.obstacle_separation(&problem.obstacles[0].shape);
         assert!((g.y - 0.01 + REST_CLEARANCE * a).abs() < 1e-9, "{g:?}");
         assert_eq!(stop.goals[1], problem.starts[1].position);
         stop.validate().unwrap();
-        // Without the move it was refused: the walker is on the stopping
-        // point at the stopping horizon.
-        let mut unmoved = stop.clone();
-        unmoved.goals[0] = Vector3::zeros();
-        unmoved.team.horizon = 1.5;
-        assert!(matches!(unmoved.validate(), Err(crate::problem::ProblemError::GoalInObstacle { robot: 0, .. })));
     }
 
     #[test]
@@ -228,20 +271,38 @@ mod tests {
         // through it: it rests left of the track.
         let mut problem = walker_through();
         problem.starts[0].position.x = 0.98;
-        problem.obstacles[0].position = Vector3::new(0.97, 0.6, 0.0);
+        problem.obstacles[0].position = Vector3::new(0.97, 0.4, 0.0);
         problem.obstacles[0].velocity = Vector3::new(0.0, -0.4, 0.0);
-        let stop = stopping_problem(&problem, 1.0, 0.005);
+        let (plain, stop) = both(&problem);
+        assert!(plain.validate().is_err());
         let (a, _) = stop.team.obstacle_separation(&problem.obstacles[0].shape);
         assert!((stop.goals[0].x - (0.97 - REST_CLEARANCE * a)).abs() < 1e-9, "{:?}", stop.goals[0]);
         stop.validate().unwrap();
     }
 
     #[test]
+    fn a_robot_heading_into_a_pillar_stops_short_of_it() {
+        // 1 m/s towards a pillar 0.5 m ahead: it would rest on its centre.
+        let mut problem = walker_through();
+        problem.starts[0] =
+            StartState { velocity: Vector3::new(1.0, 0.0, 0.0), ..StartState::at_rest(Vector3::new(-0.5, 0.0, 0.0)) };
+        problem.obstacles[0] = Obstacle { velocity: Vector3::zeros(), ..problem.obstacles[0] };
+        problem.obstacles[0].position = Vector3::new(0.0, 0.01, 0.0);
+        let (plain, stop) = both(&problem);
+        assert!(plain.validate().is_err());
+        let (a, _) = stop.team.obstacle_separation(&problem.obstacles[0].shape);
+        let g = stop.goals[0];
+        assert!(g.x < 0.0 && ((g - problem.obstacles[0].position).norm() - REST_CLEARANCE * a).abs() < 1e-9, "{g:?}");
+        stop.validate().unwrap();
+    }
+
+    #[test]
     fn the_stopping_plan_around_a_walker_verifies() {
         use crate::am::{AmSettings, Engine, Objective, Stop};
-        let stop = stopping_problem(&walker_through(), 1.0, 0.005);
+        let (plain, stop) = both(&walker_through());
         let engine = Engine::new(&stop.team, 1, Objective::Projection, AmSettings::safety_filter()).unwrap();
         let sample = SmoothReference::new(&stop.team).unwrap().coefficients(&stop);
+        assert!(engine.prepare(&plain, Some(&sample)).is_err(), "no stopping plan without the step");
         let prepared = engine.prepare(&stop, Some(&sample)).unwrap();
         let outcome = engine.run_within(&prepared, engine.cold_start(&prepared), &crate::am::Budget::unlimited());
         assert_eq!(outcome.stop, Stop::Verified);
@@ -263,7 +324,8 @@ mod tests {
             goals: vec![Vector3::zeros(); 3],
             obstacles: vec![],
         };
-        let stop = stopping_problem(&problem, 1.0, 0.005);
+        let (plain, stop) = both(&problem);
+        assert!(plain.validate().is_err());
         let (a, b) = stop.team.separation();
         let d = scaled_norm(Dim::Two, &(stop.goals[0] - stop.goals[1]), a, b);
         assert!((d - REST_CLEARANCE).abs() < 1e-9, "{d}");
