@@ -319,7 +319,7 @@ pub fn scaled_norm(dim: Dim, d: &Vector3<f64>, a: f64, b: f64) -> f64 {
 }
 
 /// `diag(a, a, b)^-1 d` in `dim` axes (the third entry 0 in 2D).
-fn scaled(dim: Dim, d: &Vector3<f64>, a: f64, b: f64) -> Vector3<f64> {
+pub(crate) fn scaled(dim: Dim, d: &Vector3<f64>, a: f64, b: f64) -> Vector3<f64> {
     Vector3::new(d.x / a, d.y / a, if dim == Dim::Three { d.z / b } else { 0.0 })
 }
 

@@ -18,7 +18,7 @@
 
 use nalgebra::Vector3;
 
-use crate::problem::{Dim, Obstacle, Problem, Team, scaled_norm};
+use crate::problem::{Dim, Obstacle, Problem, Team, scaled, scaled_norm};
 
 /// The scaled distance a moved stopping point is given from an
 /// obstacle's track and from another stopping point: room for the
@@ -97,13 +97,13 @@ fn step_aside(team: &Team, inset: f64, o: &Obstacle, start: Vector3<f64>, g: &mu
         return false;
     }
     let (a, b) = team.obstacle_separation(&o.shape);
-    let scaled = |v: &Vector3<f64>| Vector3::new(v.x / a, v.y / a, if team.dim == Dim::Three { v.z / b } else { 0.0 });
-    let room = |p: &Vector3<f64>, c: &Vector3<f64>| scaled(&(p - c)).norm();
+    let scale = |v: &Vector3<f64>| scaled(team.dim, v, a, b);
+    let room = |p: &Vector3<f64>, c: &Vector3<f64>| scale(&(p - c)).norm();
     // The point of the track from the horizon to the prediction's end
     // nearest to `g`, in the scaled metric the separation is measured in.
     let from = o.at(team.horizon);
     let along = if until.is_finite() { o.velocity * (until - team.horizon) } else { Vector3::zeros() };
-    let (sa, sd) = (scaled(&along), scaled(&(*g - from)));
+    let (sa, sd) = (scale(&along), scale(&(*g - from)));
     let share = if sa.norm_squared() > 0.0 { (sd.dot(&sa) / sa.norm_squared()).clamp(0.0, 1.0) } else { 0.0 };
     let closest = from + along * share;
     if room(g, &closest) >= REST_CLEARANCE * (1.0 - 1e-9) {
@@ -117,25 +117,25 @@ fn step_aside(team: &Team, inset: f64, o: &Obstacle, start: Vector3<f64>, g: &mu
     let epsilon = 1e-9;
     let moving = along.norm() > 0.0;
     let across = Vector3::new(-along.y, along.x, 0.0);
-    let dir = if moving && scaled(&d).norm() > epsilon {
+    let dir = if moving && scale(&d).norm() > epsilon {
         d
-    } else if scaled(&back).norm() > epsilon {
+    } else if scale(&back).norm() > epsilon {
         back
-    } else if scaled(&d).norm() > epsilon {
+    } else if scale(&d).norm() > epsilon {
         d
     } else if across.norm() > 0.0 {
         across
     } else {
         Vector3::new(1.0, 0.0, 0.0)
     };
-    let at_clearance = |dir: Vector3<f64>| {
-        let mut p = closest + dir * (REST_CLEARANCE / scaled(&dir).norm());
+    let placed = |dir: Vector3<f64>| {
+        let mut p = at_clearance(team.dim, closest, dir, a, b);
         inside(team, inset, &mut p);
         p
     };
-    let mut kept = at_clearance(dir);
+    let mut kept = placed(dir);
     if room(&kept, &closest) < 1.0 {
-        let other = at_clearance(-dir);
+        let other = placed(-dir);
         if room(&other, &closest) > room(&kept, &closest) {
             kept = other;
         }
@@ -155,39 +155,27 @@ fn spread(team: &Team, goals: &mut [Vector3<f64>]) -> bool {
     let mut moved = false;
     for i in 0..goals.len() {
         for j in i + 1..goals.len() {
-            if scaled_norm(team.dim, &(goals[i] - goals[j]), a, b) >= 1.0 {
+            let d = goals[i] - goals[j];
+            let apart = scaled_norm(team.dim, &d, a, b);
+            if apart >= 1.0 {
                 continue;
             }
+            // Each to half the clearance from the middle (on one point,
+            // across the first axis).
             let middle = (goals[i] + goals[j]) / 2.0;
-            // Each to half the clearance from the middle.
-            let (mut gi, mut gj) = (goals[i], goals[j]);
-            let across = Vector3::new(1.0, 0.0, 0.0);
-            moved_to_clearance(team.dim, &mut gi, middle, a / 2.0, b / 2.0, across);
-            moved_to_clearance(team.dim, &mut gj, middle, a / 2.0, b / 2.0, -across);
-            (goals[i], goals[j]) = (gi, gj);
+            let dir = if apart > 1e-9 { d } else { Vector3::new(0.0, 1.0, 0.0) };
+            goals[i] = at_clearance(team.dim, middle, dir, a / 2.0, b / 2.0);
+            goals[j] = 2.0 * middle - goals[i];
             moved = true;
         }
     }
     moved
 }
 
-/// Moves `g` away from `from` to [`REST_CLEARANCE`] times the separation
-/// `(a, b)` if it is closer (across `track`, a direction it lies along,
-/// when it is at `from`).
-fn moved_to_clearance(dim: Dim, g: &mut Vector3<f64>, from: Vector3<f64>, a: f64, b: f64, track: Vector3<f64>) {
-    let d = *g - from;
-    let scaled = scaled_norm(dim, &d, a, b);
-    if scaled >= REST_CLEARANCE {
-        return;
-    }
-    let d = if scaled > 1e-9 {
-        d
-    } else {
-        // On the point itself: across the track in the plane.
-        let across = Vector3::new(-track.y, track.x, 0.0);
-        if across.norm() > 0.0 { across } else { Vector3::new(1.0, 0.0, 0.0) }
-    };
-    *g = from + d * (REST_CLEARANCE / scaled_norm(dim, &d, a, b));
+/// The point [`REST_CLEARANCE`] times the separation `(a, b)` from
+/// `from` along `dir` (not zero in `dim`'s axes).
+fn at_clearance(dim: Dim, from: Vector3<f64>, dir: Vector3<f64>, a: f64, b: f64) -> Vector3<f64> {
+    from + dir * (REST_CLEARANCE / scaled_norm(dim, &dir, a, b))
 }
 
 #[cfg(test)]
