@@ -10,6 +10,8 @@
 //!   [`StateSubscriber`] and [`PlanPublisher`] for the daemon;
 //! - [`follow`]: the followability contract on the controller's side:
 //!   which verified trajectory to follow now ([`Follower`]);
+//! - [`codes`]: a plan message's [`PlanStatus`] and [`Reason`] codes, and
+//!   [`MessageError`];
 //! - [`clock`]: the monotonic clock every timestamp is read from;
 //! - [`records`]: the messages as plain serde records (recordings, the
 //!   live view, the ROS 2 bridge's status).
@@ -48,6 +50,7 @@
 //! ```
 
 pub mod clock;
+pub mod codes;
 pub mod follow;
 pub mod messages;
 pub mod pieces;

@@ -134,7 +134,7 @@ void check_the_contract() {
     msg->degree = 10;
     msg->horizon = std::nan("");
     expect(flowopt::decide(*msg, *sent) == Decision::Rest, "a NaN horizon: rest");
-    expect(flowopt::is_rejection(6) && flowopt::is_rejection(16) && !flowopt::is_rejection(19) && flowopt::is_rejection(25) && !flowopt::is_rejection(24), "rejections");
+    expect(flowopt::is_rejection(6) && flowopt::is_rejection(16) && !flowopt::is_rejection(19) && flowopt::is_rejection(25) && flowopt::is_rejection(26) && !flowopt::is_rejection(24) && !flowopt::is_rejection(27), "rejections");
 
     flowopt::StateSnapshot snapshot{};
     expect(flowopt::set_team(snapshot.team, "lab-a") && flowopt::team_name(snapshot.team) == "lab-a", "team name");

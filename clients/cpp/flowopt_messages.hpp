@@ -73,13 +73,14 @@ enum class Reason : std::uint32_t {
     WorldChanged = 23,
     Recovering = 24,
     CannotBrake = 25,
+    CannotAvoid = 26,
 };
 
 /// Whether `reason` rejects the answered snapshot: its task was not planned
-/// (for 1-7 and 16-18 it changed nothing; for 8-13 and 25 its robots and obstacles
+/// (for 1-7 and 16-18 it changed nothing; for 8-13, 25 and 26 its robots and obstacles
 /// are still the world the daemon checks every followable answer against).
 constexpr bool is_rejection(std::uint32_t reason) {
-    return (reason >= 1 && reason <= 13) || (reason >= 16 && reason <= 18) || reason == 25;
+    return (reason >= 1 && reason <= 13) || (reason >= 16 && reason <= 18) || reason == 25 || reason == 26;
 }
 
 /// Whether a message with wire status `status` carries a verified trajectory.

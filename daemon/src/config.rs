@@ -137,7 +137,9 @@ pub struct TeamConfig {
     /// The robots' top acceleration (m/s^2): published plans stay within
     /// it, and a robot moving towards a side of the box faster than any
     /// plan within it stops before the side is recovered or rejected
-    /// (`CannotBrake`; [`Team::max_acceleration`]).
+    /// (`CannotBrake`; [`Team::max_acceleration`]); with
+    /// `start_recovery_s = 0`, two robots closing on each other faster than
+    /// both can brake or swerve are rejected too (`CannotAvoid`).
     #[serde(default = "default_max_acceleration")]
     pub max_acceleration: f64,
     /// A snapshot whose robot moves faster than this many times
@@ -173,7 +175,8 @@ pub struct TeamConfig {
     /// the contact held to what the start allows until then
     /// ([`Team::start_recovery`]). 0: such snapshots' tasks are rejected
     /// (`StartsOverlap`, `StartInObstacle`, `StartOutsideWorkspace`,
-    /// `CannotBrake`) and the team stops.
+    /// `CannotBrake`, and two robots that cannot keep apart: `CannotAvoid`)
+    /// and the team stops.
     #[serde(default = "default_start_recovery_s")]
     pub start_recovery_s: f64,
     /// How cold plans are made (`[team.planner]`): the method (`auto` by

@@ -152,6 +152,7 @@ fn is_task(error: &ProblemError) -> bool {
             | E::GoalInObstacle { .. }
             | E::StartOutsideWorkspace(_)
             | E::CannotBrake { .. }
+            | E::CannotAvoid { .. }
             | E::GoalOutsideWorkspace(_)
     )
 }
@@ -176,6 +177,7 @@ pub fn rejection_of(error: &ProblemError) -> Rejection {
         E::GoalInObstacle { robot, .. } => Rejection::at(Reason::GoalInObstacle, robot),
         E::StartOutsideWorkspace(i) => Rejection::at(Reason::StartOutsideWorkspace, i),
         E::CannotBrake { robot, .. } => Rejection::at(Reason::CannotBrake, robot),
+        E::CannotAvoid { i, .. } => Rejection::at(Reason::CannotAvoid, i),
         E::GoalOutsideWorkspace(i) => Rejection::at(Reason::GoalOutsideWorkspace, i),
         E::WrongCount { .. } | E::NoRobots => Rejection::new(Reason::RobotCount),
         E::BadDimension(_) => Rejection::new(Reason::Dimension),

@@ -4,6 +4,8 @@
 //! - [`problem`]: teams, instances, validation;
 //! - [`braking`]: how far a robot moving towards a side of the box must
 //!   go at the least (the certificate of a start that cannot stay inside);
+//! - [`closing`]: how close two robots moving towards each other come at
+//!   the least (the certificate of a pair that cannot keep apart);
 //! - [`scenario`]: seeded random instances, antipodal swaps, scenario files;
 //! - [`scenes`]: scene families (random, crowd, swap, crossing, obstacle
 //!   field, formation) at any team size, at constant density;
@@ -30,6 +32,7 @@
 pub mod am;
 pub mod basis;
 pub mod braking;
+pub mod closing;
 pub mod crew;
 pub mod kkt;
 pub mod linalg;

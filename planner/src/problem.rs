@@ -25,8 +25,9 @@
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 
-use crate::basis::{BOUNDARY_ROWS, Basis, BasisError};
+use crate::basis::{BOUNDARY_ROWS, Basis, BasisError, DENSE_FACTOR};
 use crate::braking::least_excursion;
+use crate::closing;
 pub use crate::problem_error::{Field, ProblemError};
 pub use crate::start_violation::{Against, RECOVERABLE_DEPTH, StartViolation};
 
@@ -342,8 +343,7 @@ pub struct Problem {
 fn overlap(dim: Dim, d: Vector3<f64>, v: Vector3<f64>, a: f64, b: f64) -> Option<(f64, f64)> {
     let (ds, vs) = (scaled(dim, &d, a, b), scaled(dim, &v, a, b));
     let d0 = ds.norm();
-    let closing = if d0 > 0.0 { (-ds.dot(&vs) / d0).max(0.0) } else { vs.norm() };
-    (d0 < 1.0 - FEASIBILITY_TOLERANCE).then_some((1.0 - d0, closing))
+    (d0 < 1.0 - FEASIBILITY_TOLERANCE).then_some((1.0 - d0, closing::closing_rate(&ds, &vs)))
 }
 
 fn finite(v: f64, field: Field, index: usize) -> Result<(), ProblemError> {
@@ -399,8 +399,10 @@ impl Problem {
 
     /// Every constraint the starts violate beyond [`FEASIBILITY_TOLERANCE`]:
     /// the box robot by robot (outside it, then, with
-    /// [`Team::max_acceleration`], unable to stop inside it), robot pairs,
-    /// then obstacles. Allocates only
+    /// [`Team::max_acceleration`], unable to stop inside it), robot pairs
+    /// (overlapping, or, with [`Team::max_acceleration`] and without
+    /// [`Team::start_recovery`], closing faster than both can brake or
+    /// swerve, [`crate::closing`]), then obstacles. Allocates only
     /// when there is one.
     pub fn start_violations(&self) -> Vec<StartViolation> {
         let team = &self.team;
@@ -432,19 +434,29 @@ impl Problem {
                     }
                     let (upper, room) = if v > 0.0 { (true, hi - p) } else { (false, p - lo) };
                     let least = self.least_excursion(i, axis, upper, max_acceleration);
-                    if least - room > slack {
+                    if least - room > 0.0 {
                         let against = Against::Braking { axis, upper };
                         out.push(StartViolation { robot: i, against, depth: (least - room) / a, closing: v.abs() });
                     }
                 }
             }
         }
+        // The verification's instants, from its first dense one on.
+        let window = (team.horizon / (DENSE_FACTOR * team.samples - 1) as f64, team.horizon);
         for (i, si) in self.starts.iter().enumerate() {
             for (j, sj) in self.starts.iter().enumerate().skip(i + 1) {
-                if let Some((depth, closing)) =
-                    overlap(team.dim, si.position - sj.position, si.velocity - sj.velocity, a, b)
-                {
+                let (d, w) = (si.position - sj.position, si.velocity - sj.velocity);
+                if let Some((depth, closing)) = overlap(team.dim, d, w, a, b) {
                     out.push(StartViolation { robot: i, against: Against::Robot(j), depth, closing });
+                } else if let Some((most, at)) =
+                    team.max_acceleration.filter(|_| team.start_recovery.is_none()).and_then(|m| {
+                        // The ball of reachable offsets, scaled: its radius
+                        // by the larger of the two scales (a sphere holds it).
+                        let spread = m * if team.dim == Dim::Three { (1.0 / a).max(1.0 / b) } else { 1.0 / a };
+                        closing::unavoidable(scaled(team.dim, &d, a, b), scaled(team.dim, &w, a, b), spread, window)
+                    })
+                {
+                    out.push(StartViolation { robot: i, against: Against::Closing(j), depth: 1.0 - most, closing: at });
                 }
             }
         }

@@ -137,6 +137,23 @@ pub enum ProblemError {
         /// How far past the side its least excursion ends (m).
         overshoot: f64,
     },
+    /// Two robots, apart, close on each other faster than both can brake
+    /// or swerve (accelerations within the team's largest,
+    /// [`crate::problem::Team::max_acceleration`]): every pair of
+    /// trajectories they can follow touches ([`crate::closing`]).
+    #[error(
+        "ProblemError::CannotAvoid: robots {i} and {j} cannot keep apart: {scaled:.3} of their separation at {at:.3} s at the most within the largest acceleration"
+    )]
+    CannotAvoid {
+        /// The lower robot index.
+        i: usize,
+        /// The higher robot index.
+        j: usize,
+        /// The largest scaled distance they can keep there (below 1).
+        scaled: f64,
+        /// When (s after the start).
+        at: f64,
+    },
     /// A goal lies outside the workspace box.
     #[error("ProblemError::GoalOutsideWorkspace: robot {0}'s goal is outside the workspace")]
     GoalOutsideWorkspace(usize),

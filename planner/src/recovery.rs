@@ -227,6 +227,43 @@ mod tests {
     }
 
     #[test]
+    fn a_pair_closing_faster_than_it_can_swerve_is_certified_unless_the_team_recovers() {
+        // Robots 0 and 1 head past each other at 1 m/s each, 0.35 m apart
+        // along x and 0.1 m across: at 3 m/s^2 each they come within 0.9
+        // of the separation whatever they do.
+        let problem = four(|p| {
+            p.team.max_acceleration = Some(3.0);
+            p.starts[0] = StartState {
+                velocity: Vector3::new(1.0, 0.0, 0.0),
+                ..StartState::at_rest(Vector3::new(-0.175, -0.55, 0.0))
+            };
+            p.starts[1] = StartState {
+                velocity: Vector3::new(-1.0, 0.0, 0.0),
+                ..StartState::at_rest(Vector3::new(0.175, -0.45, 0.0))
+            };
+        });
+        let strict = Problem { team: Team { start_recovery: None, ..problem.team.clone() }, ..problem.clone() };
+        match strict.validate() {
+            Err(ProblemError::CannotAvoid { i: 0, j: 1, scaled, at }) => {
+                assert!(scaled > 0.85 && scaled < 0.95 && at > 0.05 && at < 0.2, "{scaled} at {at}");
+            }
+            other => panic!("{other:?}"),
+        }
+        // A team that recovers from its starts holds the pair to the
+        // separation, as any other; so does one of unknown acceleration.
+        assert_eq!(problem.validate(), Ok(()));
+        assert!(Recovery::of(&problem).violations.is_empty());
+        let unknown = Problem { team: Team { max_acceleration: None, ..strict.team.clone() }, ..strict.clone() };
+        assert_eq!(unknown.validate(), Ok(()));
+        // Slower, they swerve in time.
+        let slow = Problem {
+            starts: strict.starts.iter().map(|s| StartState { velocity: s.velocity * 0.3, ..*s }).collect(),
+            ..strict.clone()
+        };
+        assert_eq!(slow.validate(), Ok(()));
+    }
+
+    #[test]
     fn a_robot_that_cannot_brake_inside_the_box_brakes_past_its_side_and_comes_back() {
         // Robot 1, 5 cm from the right side at 1 m/s outwards: at 3 m/s^2
         // its shortest stop is 16.7 cm, a plan's (from zero acceleration)

@@ -35,6 +35,14 @@ pub enum Against {
         /// Whether it is the upper side.
         upper: bool,
     },
+    /// Another robot (a higher index) the robot, apart from it, closes
+    /// on faster than both can brake or swerve (accelerations within
+    /// [`crate::problem::Team::max_acceleration`]): they must touch,
+    /// whatever the plan ([`crate::closing`]). Checked only in a team
+    /// without [`crate::problem::Team::start_recovery`]: a team that
+    /// recovers from its starts holds every pair to the separation, as
+    /// before, and never recovers from this one.
+    Closing(usize),
 }
 
 impl Against {
@@ -59,19 +67,27 @@ pub struct StartViolation {
     /// How deep: `1 - d0` for a pair or an obstacle at scaled distance
     /// `d0`; the excess over the horizontal separation for the box (for
     /// [`Against::Braking`], how far past the side its least excursion
-    /// ends, [`crate::braking`]).
+    /// ends, [`crate::braking`]; for [`Against::Closing`], `1 - d` with
+    /// `d` the most scaled distance the pair can keep, [`crate::closing`]).
     pub depth: f64,
     /// How fast it deepens: the rate the scaled distance shrinks at, or
-    /// the outward speed (m/s) for the box; 0 when it does not.
+    /// the outward speed (m/s) for the box; 0 when it does not. For
+    /// [`Against::Closing`], the instant (s) the pair comes closest at the
+    /// least.
     pub closing: f64,
 }
 
 impl StartViolation {
     /// Whether a team with [`crate::problem::Team::start_recovery`] plans from it: an
     /// obstacle at any depth, a robot or the box to [`RECOVERABLE_DEPTH`],
-    /// a robot that cannot stop inside the box however fast (it is inside).
+    /// a robot that cannot stop inside the box however fast (it is
+    /// inside); never a pair that must touch ([`Against::Closing`]).
     pub fn recoverable(&self) -> bool {
-        matches!(self.against, Against::Obstacle(_) | Against::Braking { .. }) || self.depth <= RECOVERABLE_DEPTH
+        match self.against {
+            Against::Obstacle(_) | Against::Braking { .. } => true,
+            Against::Closing(_) => false,
+            _ => self.depth <= RECOVERABLE_DEPTH,
+        }
     }
 
     /// Its validation error (`separation`: the team's horizontal
@@ -88,6 +104,9 @@ impl StartViolation {
                 speed: self.closing,
                 overshoot: self.depth * separation,
             },
+            Against::Closing(j) => {
+                ProblemError::CannotAvoid { i: self.robot, j, scaled: 1.0 - self.depth, at: self.closing }
+            }
         }
     }
 }

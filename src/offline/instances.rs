@@ -92,9 +92,10 @@ pub struct InstanceArgs {
     pub start_speed: f64,
     /// The robots' largest acceleration (m/s^2; 0: unknown, no check), 3
     /// in the daemon's teams: a robot moving towards a side of the box
-    /// faster than any plan within it stops before the side makes the
-    /// instance certified infeasible (`CannotBrake`). The success verdict
-    /// does not check acceleration.
+    /// faster than any plan within it stops before the side (`CannotBrake`),
+    /// or two robots closing on each other faster than both can brake or
+    /// swerve (`CannotAvoid`), makes the instance certified infeasible. The
+    /// success verdict does not check acceleration.
     #[arg(long, default_value_t = 0.0)]
     pub max_acceleration: f64,
     /// Seed of the (first) instance; instance i uses seed + i.
@@ -141,10 +142,11 @@ impl InstanceArgs {
     }
 
     /// Why `problem` is certified infeasible before any planning (a robot
-    /// that cannot brake inside the box), if it is.
+    /// that cannot brake inside the box, a pair that cannot keep apart), if
+    /// it is.
     pub fn certified_infeasible(problem: &Problem) -> Option<ProblemError> {
         match problem.validate() {
-            Err(e @ ProblemError::CannotBrake { .. }) => Some(e),
+            Err(e @ (ProblemError::CannotBrake { .. } | ProblemError::CannotAvoid { .. })) => Some(e),
             _ => None,
         }
     }
@@ -158,6 +160,10 @@ pub fn infeasible_json(why: &ProblemError) -> serde_json::Value {
         ProblemError::CannotBrake { robot, axis, upper, speed, overshoot } => serde_json::json!({
             "reason": "CannotBrake", "robot": robot, "axis": axis, "upper": upper,
             "speed_m_s": speed, "overshoot_m": overshoot, "message": why.to_string(),
+        }),
+        ProblemError::CannotAvoid { i, j, scaled, at } => serde_json::json!({
+            "reason": "CannotAvoid", "robot": i, "other": j, "scaled_distance": scaled,
+            "at_s": at, "message": why.to_string(),
         }),
         _ => serde_json::json!({ "message": why.to_string() }),
     }
@@ -205,6 +211,14 @@ mod tests {
         let (unknown, _) = moving(0.0).instance(0).unwrap();
         assert_eq!(unknown.team.max_acceleration, None);
         assert!(InstanceArgs::certified_infeasible(&unknown).is_none());
+        // Seed 909: robots 7 and 14 close faster than both can swerve.
+        let (problem, _) = moving(3.0).instance(9).unwrap();
+        match InstanceArgs::certified_infeasible(&problem) {
+            Some(ProblemError::CannotAvoid { i: 7, j: 14, scaled, at }) => {
+                assert!(scaled < 0.9 && at > 0.1 && at < 0.3, "{scaled} at {at}");
+            }
+            other => panic!("{other:?}"),
+        }
         // From rest nothing is certified.
         let rest = InstanceArgs { start_speed: 0.0, ..moving(3.0) };
         assert!(InstanceArgs::certified_infeasible(&rest.instance(0).unwrap().0).is_none());

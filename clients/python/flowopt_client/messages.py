@@ -84,15 +84,16 @@ class Reason(enum.IntEnum):
     WORLD_CHANGED = 23
     RECOVERING = 24
     CANNOT_BRAKE = 25
+    CANNOT_AVOID = 26
 
     @property
     def is_rejection(self) -> bool:
         """Whether the answered snapshot was rejected: its task was not
         planned. Rejected by a header, clock, sequence or value check (1-7,
-        16-18) it changed nothing; rejected for its task (8-13, 25) its
+        16-18) it changed nothing; rejected for its task (8-13, 25, 26) its
         robots and obstacles are still the world every followable answer is
         checked against."""
-        return 1 <= self <= 13 or 16 <= self <= 18 or self == 25
+        return 1 <= self <= 13 or 16 <= self <= 18 or self in (25, 26)
 
     @property
     def label(self) -> str:

@@ -82,7 +82,8 @@ def test_reason_codes_are_the_documented_ones():
     assert (m.Reason.NON_FINITE, m.Reason.CLOCK, m.Reason.LIMITS, m.Reason.WORLD_CHANGED) == (6, 16, 22, 23)
     assert m.Reason.RECOVERING == 24 and not m.Reason.RECOVERING.is_rejection
     assert m.Reason.CANNOT_BRAKE == 25 and m.Reason.CANNOT_BRAKE.label == "CannotBrake"
+    assert m.Reason.CANNOT_AVOID == 26 and m.Reason.CANNOT_AVOID.label == "CannotAvoid"
     assert (m.PlanStatus.NO_PLAN.label, m.Reason.DEADLINE_MISSED.label) == ("NoPlan", "DeadlineMissed")
     rejections = {r for r in m.Reason if r.is_rejection}
-    assert rejections == set(m.Reason(v) for v in [*range(1, 14), 16, 17, 18, 25])
+    assert rejections == set(m.Reason(v) for v in [*range(1, 14), 16, 17, 18, 25, 26])
     assert [s.followable for s in m.PlanStatus] == [False, True, True, True]

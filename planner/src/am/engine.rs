@@ -17,6 +17,9 @@ use crate::route::Fitter;
 /// First sample the constraints are imposed at (sample 0 is the start state).
 pub const FIRST_CONSTRAINED_SAMPLE: usize = 1;
 
+/// Sample intervals after the start that [`AmSettings::start_refine`] cuts.
+pub const START_INTERVALS: usize = 2;
+
 /// What the AM iterations minimise.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Objective {
@@ -165,7 +168,7 @@ impl Engine {
         let basis = team.basis().map_err(ProblemError::from)?;
         let n_xi = basis.n_xi();
         let k = basis.samples();
-        let grid = SampleGrid::new(team.degree, (FIRST_CONSTRAINED_SAMPLE..k).map(|s| basis.tau(s)).collect());
+        let grid = SampleGrid::new(team.degree, constrained_taus(&basis, settings.start_refine));
         let dense_count = DENSE_FACTOR * k;
         let dense = SampleGrid::new(
             team.degree,
@@ -175,7 +178,7 @@ impl Engine {
             team.degree,
             (1..(1 + settings.verify_skip).min(dense_count)).map(|s| s as f64 / (dense_count - 1) as f64).collect(),
         );
-        let gram = basis.gram(FIRST_CONSTRAINED_SAMPLE);
+        let gram = grid.gram();
         let boundary = basis.boundary_rows();
         let identity = (0..n_xi * n_xi).map(|i| f64::from(i % (n_xi + 1) == 0));
         let smoothness = |weight: f64| {
@@ -254,4 +257,19 @@ impl Engine {
     pub fn plan(&self, xi: Vec<f64>) -> JointPlan {
         JointPlan::new(&self.team, xi)
     }
+}
+
+/// The constrained instants: samples `FIRST_CONSTRAINED_SAMPLE..K`, each of
+/// the first [`START_INTERVALS`] intervals cut into `refine` parts.
+fn constrained_taus(basis: &Basis, refine: usize) -> Vec<f64> {
+    let refine = refine.max(1);
+    let step = basis.tau(1);
+    let mut taus = Vec::with_capacity(basis.samples() + START_INTERVALS * refine);
+    for s in FIRST_CONSTRAINED_SAMPLE..basis.samples() {
+        if s <= START_INTERVALS {
+            taus.extend((1..refine).map(|j| basis.tau(s - 1) + step * j as f64 / refine as f64));
+        }
+        taus.push(basis.tau(s));
+    }
+    taus
 }

@@ -114,6 +114,12 @@ pub struct AmSettings {
     /// of symmetric scenes such as antipodal swaps).
     #[serde(default)]
     pub veer: bool,
+    /// Cut each of the first [`super::engine::START_INTERVALS`] intervals
+    /// between constrained samples into this many (0 and 1: the even grid):
+    /// a plan from motion turns hardest right after its start, and between
+    /// two even samples it can leave the box the samples keep it in.
+    #[serde(default)]
+    pub start_refine: usize,
     /// Threads a run of a team of [`super::CREW_MIN_ROBOTS`] robots or more
     /// iterates on (0 and 1: the calling thread alone), the calling one
     /// among them: the same iterates, bit for bit, for every count. Not a
@@ -146,6 +152,7 @@ impl AmSettings {
             chord: true,
             broad_phase: true,
             veer: true,
+            start_refine: 4,
             threads: 0,
         }
     }
@@ -172,6 +179,7 @@ impl AmSettings {
             chord: true,
             broad_phase: true,
             veer: false,
+            start_refine: 1,
             threads: 0,
         }
     }

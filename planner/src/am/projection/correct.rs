@@ -271,7 +271,7 @@ impl Projection {
                                 let track = &limits.tracks[m * D * count..(m + 1) * D * count];
                                 (robot_rows::<D>(track, 1, count, 0), &limits.obstacle_sep[m], limits.until[m], m)
                             }
-                            Against::Box { .. } | Against::Braking { .. } => continue,
+                            Against::Box { .. } | Against::Braking { .. } | Against::Closing(_) => continue,
                         };
                         let p = robot_rows::<D>(pos, n, count, f.robot);
                         let (p, q): ([&[f64]; D], [&[f64]; D]) =

@@ -30,6 +30,15 @@ impl SampleGrid {
         Self { taus, pt, p }
     }
 
+    /// `P^T P` (`n_xi x n_xi`, row-major) over the instants.
+    pub fn gram(&self) -> Vec<f64> {
+        let count = self.count();
+        let n_xi = self.pt.len() / count.max(1);
+        let mut g = vec![0.0; n_xi * n_xi];
+        gemm(&mut g, &self.pt, &self.p, n_xi, count, n_xi, Accum::Replace);
+        g
+    }
+
     /// Number of instants.
     pub fn count(&self) -> usize {
         self.taus.len()
