@@ -87,13 +87,13 @@ impl PlanStatus {
 pub enum Reason {
     /// Nothing to report.
     None = 0,
-    /// `version` is not [`WIRE_VERSION`].
+    /// `version` is not `WIRE_VERSION`.
     Version = 1,
     /// `team` does not name this service's team.
     Team = 2,
     /// `dim` differs from the team's.
     Dimension = 3,
-    /// `robots` differs from the team's (or exceeds [`MAX_ROBOTS`]).
+    /// `robots` differs from the team's (or exceeds `MAX_ROBOTS`).
     RobotCount = 4,
     /// `obstacles` exceeds the configured maximum.
     ObstacleCount = 5,

@@ -291,6 +291,25 @@ mod tests {
     }
 
     #[test]
+    fn a_pair_that_cannot_keep_apart_is_rejected_as_cannot_avoid_only_without_recovery() {
+        let (team, mut s) = valid();
+        let braking = Team { max_acceleration: Some(3.0), ..team.clone() };
+        let recovering = Team { start_recovery: Some(1.0), ..braking.clone() };
+        // Robots 1 and 2 head past each other at 1 m/s each, 0.35 m apart
+        // along x and 0.1 m across: within 0.9 of their separation
+        // whatever they do at 3 m/s^2.
+        (s.robot[1].position, s.robot[1].velocity) = ([-0.175, -0.55, 0.0], [1.0, 0.0, 0.0]);
+        (s.robot[2].position, s.robot[2].velocity) = ([0.175, -0.45, 0.0], [-1.0, 0.0, 0.0]);
+        let strict = measured(&s, &braking, PLAUSIBLE).unwrap();
+        assert_eq!(strict.task, Err(Rejection::at(Reason::CannotAvoid, 1)));
+        assert!(Reason::CannotAvoid.is_rejection());
+        // A recovering team plans them as any other pair; so does one of
+        // unknown acceleration.
+        assert_eq!(measured(&s, &recovering, PLAUSIBLE).unwrap().task, Ok(()));
+        assert_eq!(measured(&s, &team, PLAUSIBLE).unwrap().task, Ok(()));
+    }
+
+    #[test]
     fn a_robot_that_cannot_brake_inside_the_box_is_recovered_or_rejected_as_cannot_brake() {
         let (team, mut s) = valid();
         let braking = Team { max_acceleration: Some(3.0), ..team.clone() };

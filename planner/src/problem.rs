@@ -182,7 +182,10 @@ pub struct Team {
     /// the box moving towards a side faster than it can stop before it
     /// ([`Against::Braking`]) is then rejected ([`ProblemError::CannotBrake`])
     /// or, with [`Team::start_recovery`], recovered from like a start
-    /// outside the box. `None`: no such check.
+    /// outside the box; without [`Team::start_recovery`], two robots closing
+    /// on each other faster than both can brake or swerve
+    /// ([`Against::Closing`]) are rejected ([`ProblemError::CannotAvoid`]).
+    /// `None`: no such check.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub max_acceleration: Option<f64>,
 }
@@ -397,7 +400,10 @@ impl Problem {
         least_excursion(t.degree, t.samples, t.horizon, max_acceleration, towards, speed)
     }
 
-    /// Every constraint the starts violate beyond [`FEASIBILITY_TOLERANCE`]:
+    /// Every constraint the starts violate beyond [`FEASIBILITY_TOLERANCE`]
+    /// (a robot that must leave the box under every plan: beyond the exact
+    /// box, the one the engine's verification holds plans to after the
+    /// start):
     /// the box robot by robot (outside it, then, with
     /// [`Team::max_acceleration`], unable to stop inside it), robot pairs
     /// (overlapping, or, with [`Team::max_acceleration`] and without
@@ -453,7 +459,8 @@ impl Problem {
                         // The ball of reachable offsets, scaled: its radius
                         // by the larger of the two scales (a sphere holds it).
                         let spread = m * if team.dim == Dim::Three { (1.0 / a).max(1.0 / b) } else { 1.0 / a };
-                        closing::unavoidable(scaled(team.dim, &d, a, b), scaled(team.dim, &w, a, b), spread, window)
+                        let (q, r) = (scaled(team.dim, &d, a, b), scaled(team.dim, &w, a, b));
+                        closing::unavoidable(q, r, spread, window, 1.0 - FEASIBILITY_TOLERANCE)
                     })
                 {
                     out.push(StartViolation { robot: i, against: Against::Closing(j), depth: 1.0 - most, closing: at });

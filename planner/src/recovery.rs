@@ -109,7 +109,12 @@ impl Recovery {
                         let p = problem.starts[v.robot].position[axis];
                         if upper { p + out } else { p - out }
                     }
-                    _ => ((1.0 - RECOVERY_SLACK) * (1.0 - v.depth) - v.closing * quarter).max(0.0),
+                    Against::Robot(_) | Against::Obstacle(_) => {
+                        ((1.0 - RECOVERY_SLACK) * (1.0 - v.depth) - v.closing * quarter).max(0.0)
+                    }
+                    // Never recovered from (a recovering team does not
+                    // check it): the separation.
+                    Against::Closing(_) => 1.0,
                 };
                 Violation { robot: v.robot, against: v.against, floor }
             })

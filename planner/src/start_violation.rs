@@ -57,7 +57,8 @@ impl Against {
 }
 
 /// A constraint a measured start violates beyond [`crate::problem::FEASIBILITY_TOLERANCE`]
-/// ([`crate::problem::Problem::start_violations`]).
+/// (or, for [`Against::Braking`], one every plan violates beyond the exact
+/// box; [`crate::problem::Problem::start_violations`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct StartViolation {
     /// The robot (the lower index of a pair).

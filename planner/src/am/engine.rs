@@ -17,8 +17,13 @@ use crate::route::Fitter;
 /// First sample the constraints are imposed at (sample 0 is the start state).
 pub const FIRST_CONSTRAINED_SAMPLE: usize = 1;
 
-/// Sample intervals after the start that [`AmSettings::start_refine`] cuts.
+/// Sample intervals [`AmSettings::start_refine`] cuts: this many after
+/// the first constrained sample (the interval before it, where a measured
+/// start may be in near-contact, keeps no instant).
 pub const START_INTERVALS: usize = 2;
+
+/// The most parts [`AmSettings::start_refine`] cuts an interval into.
+pub const MAX_START_REFINE: usize = 16;
 
 /// What the AM iterations minimise.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -141,7 +146,8 @@ pub struct Engine {
     pub(super) settings: AmSettings,
     pub(super) basis: Basis,
     pub(super) n_xi: usize,
-    /// The constrained samples `1..K`.
+    /// The constrained instants: samples `1..K`, and between samples 1 and
+    /// 3 the cuts of [`AmSettings::start_refine`].
     pub(super) grid: SampleGrid,
     /// The dense verification grid `1 + verify_skip..DENSE_FACTOR K` (of
     /// `DENSE_FACTOR K`).
@@ -260,13 +266,14 @@ impl Engine {
 }
 
 /// The constrained instants: samples `FIRST_CONSTRAINED_SAMPLE..K`, each of
-/// the first [`START_INTERVALS`] intervals cut into `refine` parts.
+/// the [`START_INTERVALS`] intervals after the first of them cut into
+/// `refine` parts (at most [`MAX_START_REFINE`]).
 fn constrained_taus(basis: &Basis, refine: usize) -> Vec<f64> {
-    let refine = refine.max(1);
+    let refine = refine.clamp(1, MAX_START_REFINE);
     let step = basis.tau(1);
     let mut taus = Vec::with_capacity(basis.samples() + START_INTERVALS * refine);
     for s in FIRST_CONSTRAINED_SAMPLE..basis.samples() {
-        if s <= START_INTERVALS {
+        if s > FIRST_CONSTRAINED_SAMPLE && s <= FIRST_CONSTRAINED_SAMPLE + START_INTERVALS {
             taus.extend((1..refine).map(|j| basis.tau(s - 1) + step * j as f64 / refine as f64));
         }
         taus.push(basis.tau(s));

@@ -13,8 +13,9 @@
 //! right-hand side only change through `P^T (e - F xi)`, which is non-zero
 //! only at violated samples, and `F^T F xi` has the Laplacian structure.
 //!
-//! Constraints are imposed at samples `1..K`: sample 0 is the measured start,
-//! which no plan can change. Every separation is inflated by the safety
+//! Constraints are imposed at samples `1..K` (and, for the optimiser, at
+//! the cuts of [`AmSettings::start_refine`] between samples 1 and 3): sample
+//! 0 is the measured start, which no plan can change. Every separation is inflated by the safety
 //! `margin` (and the box shrunk by it) so that a plan meeting them at the
 //! samples also clears the true sizes between samples; the dense
 //! verification ([`AmSettings`]) checks exactly that.

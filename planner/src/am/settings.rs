@@ -114,10 +114,11 @@ pub struct AmSettings {
     /// of symmetric scenes such as antipodal swaps).
     #[serde(default)]
     pub veer: bool,
-    /// Cut each of the first [`super::engine::START_INTERVALS`] intervals
-    /// between constrained samples into this many (0 and 1: the even grid):
-    /// a plan from motion turns hardest right after its start, and between
-    /// two even samples it can leave the box the samples keep it in.
+    /// Cut each of the [`super::engine::START_INTERVALS`] intervals after
+    /// the first constrained sample into this many (0 and 1: the even grid;
+    /// at most [`super::engine::MAX_START_REFINE`]): a plan from motion
+    /// turns hardest right after its start, and between two even samples
+    /// it can leave the box the samples keep it in.
     #[serde(default)]
     pub start_refine: usize,
     /// Threads a run of a team of [`super::CREW_MIN_ROBOTS`] robots or more
