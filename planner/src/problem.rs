@@ -400,10 +400,7 @@ impl Problem {
         least_excursion(t.degree, t.samples, t.horizon, max_acceleration, towards, speed)
     }
 
-    /// Every constraint the starts violate beyond [`FEASIBILITY_TOLERANCE`]
-    /// (a robot that must leave the box under every plan: beyond the exact
-    /// box, the one the engine's verification holds plans to after the
-    /// start):
+    /// Every constraint the starts violate beyond [`FEASIBILITY_TOLERANCE`]:
     /// the box robot by robot (outside it, then, with
     /// [`Team::max_acceleration`], unable to stop inside it), robot pairs
     /// (overlapping, or, with [`Team::max_acceleration`] and without
@@ -440,7 +437,7 @@ impl Problem {
                     }
                     let (upper, room) = if v > 0.0 { (true, hi - p) } else { (false, p - lo) };
                     let least = self.least_excursion(i, axis, upper, max_acceleration);
-                    if least - room > 0.0 {
+                    if least - room > slack {
                         let against = Against::Braking { axis, upper };
                         out.push(StartViolation { robot: i, against, depth: (least - room) / a, closing: v.abs() });
                     }

@@ -57,8 +57,7 @@ impl Against {
 }
 
 /// A constraint a measured start violates beyond [`crate::problem::FEASIBILITY_TOLERANCE`]
-/// (or, for [`Against::Braking`], one every plan violates beyond the exact
-/// box; [`crate::problem::Problem::start_violations`]).
+/// ([`crate::problem::Problem::start_violations`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct StartViolation {
     /// The robot (the lower index of a pair).
