@@ -131,6 +131,45 @@ fn a_killed_and_restarted_client_is_served_again() {
 }
 
 #[test]
+fn an_idle_daemon_leaves_the_cores_alone() {
+    // Its worker runs under SCHED_FIFO where allowed: a worker that spins
+    // while no controller publishes takes a core from every other process
+    // (two such daemons starved this file's simulators on a 2-core machine).
+    let setup = Setup::new("idle");
+    let daemon = setup.daemon();
+    let worker = || worker_cpu_seconds(daemon.0.id());
+    let since = std::time::Instant::now();
+    while worker().is_none() {
+        assert!(since.elapsed() < common::ANSWER, "the daemon started no worker");
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    }
+    let before = worker().unwrap();
+    // Past the team's stale_after (1.5 s), twice over.
+    std::thread::sleep(std::time::Duration::from_secs(4));
+    let used = worker().unwrap() - before;
+    assert!(used < 0.5, "the idle worker used {used:.2} s of CPU in 4 s");
+}
+
+/// CPU seconds (user and system) of the daemon `pid`'s team worker
+/// (`plan-t`), once it runs.
+fn worker_cpu_seconds(pid: u32) -> Option<f64> {
+    // SAFETY: sysconf has no preconditions.
+    let ticks = unsafe { libc::sysconf(libc::_SC_CLK_TCK) } as f64;
+    for task in std::fs::read_dir(format!("/proc/{pid}/task")).ok()?.flatten() {
+        let stat = std::fs::read_to_string(task.path().join("stat")).unwrap_or_default();
+        // pid (comm) state ...: utime and stime are fields 14 and 15.
+        let Some((head, tail)) = stat.rsplit_once(')') else { continue };
+        if !head.ends_with("(plan-t") {
+            continue;
+        }
+        let fields: Vec<&str> = tail.split_whitespace().collect();
+        let cpu: f64 = fields[11..13].iter().map(|f| f.parse::<f64>().unwrap()).sum();
+        return Some(cpu / ticks);
+    }
+    None
+}
+
+#[test]
 fn a_restarted_daemon_is_picked_up_by_its_clients() {
     let setup = Setup::new("restart");
     let mut c = setup.controller("e2e-restart");

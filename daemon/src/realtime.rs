@@ -10,6 +10,10 @@
 //!   normal scheduler and none under `SCHED_FIFO` (docs/BENCHMARKS.md).
 //!   Refused without `CAP_SYS_NICE` or an rtprio limit (`ulimit -r`): the
 //!   worker then runs under the normal scheduler, and a warning says so.
+//!   Between snapshots the worker sleeps (a wake each `stale_after_ms` while
+//!   no controller publishes): a real-time thread that spun would take a
+//!   core from every other process (`tests/e2e.rs`,
+//!   `an_idle_daemon_leaves_the_cores_alone`).
 //! - **Memory locking** (`lock_memory`): every page mapped now and later is
 //!   locked (`mlockall`), after the engines are preloaded, so that no
 //!   answer waits for a page fault. Refused without `CAP_IPC_LOCK` or a

@@ -70,6 +70,10 @@ pub(crate) fn run(
     // When the newest accepted snapshot arrived (a late cold plan answers it).
     let mut newest_received_ns = 0;
     loop {
+        // Until the next staleness check; once reported, a wake each
+        // `stale_after` (a zero wait here spun the worker, under
+        // SCHED_FIFO, on a whole core while no controller published).
+        let wait = if reported_stale { stale_after } else { stale_after.saturating_sub(last_job.elapsed()) };
         select! {
             recv(jobs) -> job => {
                 let Ok(job) = job else { break };
@@ -95,7 +99,7 @@ pub(crate) fn run(
                     }
                 }
             }
-            default(stale_after.saturating_sub(last_job.elapsed())) => {
+            default(wait) => {
                 if !reported_stale && last_job.elapsed() >= stale_after {
                     let (sequence, timestamp) = planner.newest().unwrap_or((0, 0));
                     warn!(team = config.name, sequence, "no snapshot for {stale_after:?}: state is stale");

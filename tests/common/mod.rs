@@ -213,13 +213,15 @@ impl Watcher {
 /// Waits on `plans` for the next plan message of `status` and `reason`.
 pub fn wait_for(plans: &mut PlanSubscriber, status: PlanStatus, reason: Reason) -> Received<JointTrajectory> {
     let since = Instant::now();
+    // What came instead, shown when none does.
+    let mut seen = std::collections::BTreeMap::<String, usize>::new();
     while since.elapsed() < ANSWER {
-        if let Some(plan) = plans.wait(Duration::from_millis(100)).unwrap()
-            && plan.status() == Ok(status)
-            && plan.reason() == Ok(reason)
-        {
-            return plan;
+        if let Some(plan) = plans.wait(Duration::from_millis(100)).unwrap() {
+            if plan.status() == Ok(status) && plan.reason() == Ok(reason) {
+                return plan;
+            }
+            *seen.entry(format!("{:?} for {:?}", plan.status(), plan.reason())).or_default() += 1;
         }
     }
-    panic!("no {status:?} message for {reason:?}");
+    panic!("no {status:?} message for {reason:?} in {ANSWER:?}; instead: {seen:?}");
 }
