@@ -29,7 +29,7 @@ use crate::basis::{BOUNDARY_ROWS, Basis, BasisError, DENSE_FACTOR};
 use crate::braking::least_excursion;
 use crate::closing;
 pub use crate::problem_error::{Field, ProblemError};
-pub use crate::start_violation::{Against, RECOVERABLE_DEPTH, StartViolation};
+pub use crate::start_violation::{Against, BrakingExcess, RECOVERABLE_DEPTH, StartViolation};
 
 /// Relative tolerance on every clearance: a plan is feasible when every
 /// scaled distance is at least `1 - FEASIBILITY_TOLERANCE` (1% of the
@@ -400,6 +400,32 @@ impl Problem {
         least_excursion(t.degree, t.samples, t.horizon, max_acceleration, towards, speed)
     }
 
+    /// With [`Team::max_acceleration`], each robot and axis along which the
+    /// robot, within [`FEASIBILITY_TOLERANCE`] of the box on that axis,
+    /// moves towards a side it cannot stop before: how far past the side
+    /// its least excursion takes it ([`Self::least_excursion`]). Beyond
+    /// the tolerance that is a start violation ([`Against::Braking`]); within
+    /// it, a floor the plan keeps to ([`crate::recovery`]).
+    pub fn braking_excesses(&self) -> impl Iterator<Item = BrakingExcess> + '_ {
+        let team = &self.team;
+        let slack = FEASIBILITY_TOLERANCE * team.separation().0;
+        let axes = team.dim.axes();
+        team.max_acceleration.into_iter().flat_map(move |max_acceleration| {
+            (0..self.starts.len() * axes).filter_map(move |k| {
+                let (robot, axis) = (k / axes, k % axes);
+                let (p, v) = (self.starts[robot].position[axis], self.starts[robot].velocity[axis]);
+                let (lo, hi) = (team.workspace.min[axis], team.workspace.max[axis]);
+                // Outside on this axis it is `Against::Box`.
+                if v == 0.0 || p < lo - slack || p > hi + slack {
+                    return None;
+                }
+                let (upper, room) = if v > 0.0 { (true, hi - p) } else { (false, p - lo) };
+                let least = self.least_excursion(robot, axis, upper, max_acceleration);
+                (least > room).then_some(BrakingExcess { robot, axis, upper, least, excess: least - room })
+            })
+        })
+    }
+
     /// Every constraint the starts violate beyond [`FEASIBILITY_TOLERANCE`]:
     /// the box robot by robot (outside it, then, with
     /// [`Team::max_acceleration`], unable to stop inside it), robot pairs
@@ -426,23 +452,10 @@ impl Problem {
                 }
             }
         }
-        if let Some(max_acceleration) = team.max_acceleration {
-            for (i, s) in self.starts.iter().enumerate() {
-                for axis in 0..team.dim.axes() {
-                    let (p, v) = (s.position[axis], s.velocity[axis]);
-                    let (lo, hi) = (team.workspace.min[axis], team.workspace.max[axis]);
-                    // Outside on this axis it is `Against::Box`, above.
-                    if v == 0.0 || p < lo - slack || p > hi + slack {
-                        continue;
-                    }
-                    let (upper, room) = if v > 0.0 { (true, hi - p) } else { (false, p - lo) };
-                    let least = self.least_excursion(i, axis, upper, max_acceleration);
-                    if least - room > slack {
-                        let against = Against::Braking { axis, upper };
-                        out.push(StartViolation { robot: i, against, depth: (least - room) / a, closing: v.abs() });
-                    }
-                }
-            }
+        for e in self.braking_excesses().filter(|e| e.excess > slack) {
+            let against = Against::Braking { axis: e.axis, upper: e.upper };
+            let closing = self.starts[e.robot].velocity[e.axis].abs();
+            out.push(StartViolation { robot: e.robot, against, depth: e.excess / a, closing });
         }
         // The verification's instants, from its first dense one on.
         let window = (team.horizon / (DENSE_FACTOR * team.samples - 1) as f64, team.horizon);

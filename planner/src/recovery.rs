@@ -25,6 +25,16 @@
 //!   can follow stops before it ([`crate::braking`]) keeps within
 //!   `1 + RECOVERY_SLACK` times that plan's least excursion of where it is.
 //!
+//! - in every team (with or without start recovery), a robot within the
+//!   tolerance of the box moving towards a side whose least excursion takes
+//!   it past that side by no more than the tolerance
+//!   ([`Problem::braking_excesses`]: not a start violation, but no plan
+//!   keeps it inside) keeps within `1 + RECOVERY_SLACK` times that
+//!   excursion of where it is, never further out than the tolerance; without
+//!   start recovery, for the whole plan. Without this, such a start (a robot
+//!   measured at a side with some speed towards it) ran to the iteration
+//!   cap: the optimiser and its verification held the exact box.
+//!
 //! Every other constraint holds in full from the first instant. The
 //! optimiser's projection, its dense verification ([`crate::am::Limits`])
 //! and [`crate::metrics::Metrics`] read the floors from here.
@@ -51,7 +61,7 @@
 //! assert_eq!(recovery.bounds(1, 0, 1.0, (-1.0, 1.0)), (-1.0, 1.0));
 //! ```
 
-use crate::problem::{Against, Problem};
+use crate::problem::{Against, FEASIBILITY_TOLERANCE, Problem};
 
 /// How much deeper than measured a violation may become during recovery,
 /// as a share of the measured distance (or excess): room for the plan,
@@ -75,8 +85,10 @@ pub struct Violation {
 /// Every start violation of a problem and how long its floors hold.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct Recovery {
-    /// Seconds from the start the floors hold for (0 without
-    /// [`crate::problem::Team::start_recovery`]).
+    /// Seconds from the start the floors hold for: the team's
+    /// [`crate::problem::Team::start_recovery`]; without it, the horizon
+    /// where a start's braking takes it past a side within the tolerance,
+    /// else 0.
     pub until: f64,
     /// The violations, in the order [`Problem::validate`] reports them:
     /// the box robot by robot, pairs, then obstacles.
@@ -89,8 +101,20 @@ impl Recovery {
     /// allocate when there are none.
     pub fn of(problem: &Problem) -> Self {
         let team = &problem.team;
-        let until = team.start_recovery.unwrap_or(0.0);
-        let quarter = until / 4.0;
+        let slack = FEASIBILITY_TOLERANCE * team.separation().0;
+        // Starts that cannot stop before a side but past it by no more than
+        // the tolerance: not violations, but no plan keeps them in the box.
+        let tolerated = problem.braking_excesses().filter(|e| e.excess <= slack).map(|e| {
+            // Its least excursion with the slack, never past the tolerance.
+            let out = ((1.0 + RECOVERY_SLACK) * e.least).min(e.least - e.excess + slack);
+            let p = problem.starts[e.robot].position[e.axis];
+            let floor = if e.upper { p + out } else { p - out };
+            Violation { robot: e.robot, against: Against::Braking { axis: e.axis, upper: e.upper }, floor }
+        });
+        let mut tolerated = tolerated.peekable();
+        // Without start recovery those floors hold for the whole plan.
+        let until = team.start_recovery.unwrap_or(if tolerated.peek().is_some() { team.horizon } else { 0.0 });
+        let quarter = team.start_recovery.unwrap_or(0.0) / 4.0;
         let violations = problem
             .start_violations()
             .into_iter()
@@ -118,6 +142,7 @@ impl Recovery {
                 };
                 Violation { robot: v.robot, against: v.against, floor }
             })
+            .chain(tolerated)
             .collect();
         Self { until, violations }
     }
@@ -311,6 +336,50 @@ mod tests {
             let bound = if t < 1.0 { v[0].floor } else { 1.0 + FEASIBILITY_TOLERANCE * 0.2 };
             assert!(x(t) <= bound, "x({t}) = {}", x(t));
         }
+    }
+
+    #[test]
+    fn a_robot_that_must_brake_past_its_side_within_the_tolerance_is_planned_there() {
+        // Robot 1 at 0.3 m/s outwards, placed so that its least excursion
+        // ends 1 mm past the right side: within the 2 mm tolerance, so not
+        // a violation, but no plan keeps it in the box.
+        let least = crate::braking::least_excursion(10, 50, 5.0, 3.0, 0.0, 0.3);
+        let x0 = 1.0 - least + 0.001;
+        let problem = four(|p| {
+            p.team = Team { start_recovery: None, max_acceleration: Some(3.0), ..p.team.clone() };
+            p.starts[1] = StartState {
+                velocity: Vector3::new(0.3, 0.0, 0.0),
+                ..StartState::at_rest(Vector3::new(x0, -0.5, 0.0))
+            };
+        });
+        assert_eq!(problem.validate(), Ok(()));
+        let excess: Vec<_> = problem.braking_excesses().collect();
+        assert_eq!(excess.len(), 1);
+        assert!((excess[0].excess - 0.001).abs() < 1e-9, "{excess:?}");
+        let recovery = Recovery::of(&problem);
+        assert_eq!(recovery.until, problem.team.horizon, "held for the whole plan");
+        let v = recovery.violations;
+        assert_eq!(
+            v.iter().map(|v| (v.robot, v.against)).collect::<Vec<_>>(),
+            [(1, Against::Braking { axis: 0, upper: true })]
+        );
+        let slack = FEASIBILITY_TOLERANCE * problem.team.separation().0;
+        assert!((v[0].floor - (x0 + (1.1 * least).min(least - 0.001 + slack))).abs() < 1e-12, "{}", v[0].floor);
+        assert!(v[0].floor > 1.001 && v[0].floor <= 1.0 + slack + 1e-12);
+        // Verified, past the side and never past its floor.
+        let plan = planned(&problem);
+        let x = |t: f64| plan.at(t)[1].position.x;
+        assert!((0..=20).any(|k| x(k as f64 * 0.05) > 1.0), "it does leave the box");
+        for k in 0..=100 {
+            let t = k as f64 * 0.05;
+            assert!(x(t) <= v[0].floor, "x({t}) = {}", x(t));
+        }
+        // Slower, nothing to tolerate.
+        let slow = Problem {
+            starts: problem.starts.iter().map(|s| StartState { velocity: s.velocity * 0.5, ..*s }).collect(),
+            ..problem.clone()
+        };
+        assert_eq!(Recovery::of(&slow), Recovery::default());
     }
 
     #[test]

@@ -56,6 +56,22 @@ impl Against {
     }
 }
 
+/// A robot moving towards a side of the box it cannot stop before
+/// ([`crate::problem::Problem::braking_excesses`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BrakingExcess {
+    /// The robot.
+    pub robot: usize,
+    /// The axis.
+    pub axis: usize,
+    /// Whether the side is the upper one.
+    pub upper: bool,
+    /// How far it goes towards the side at the least, from its start (m).
+    pub least: f64,
+    /// How far past the side that takes it (m, positive).
+    pub excess: f64,
+}
+
 /// A constraint a measured start violates beyond [`crate::problem::FEASIBILITY_TOLERANCE`]
 /// ([`crate::problem::Problem::start_violations`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
