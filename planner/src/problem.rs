@@ -421,7 +421,15 @@ impl Problem {
                 }
                 let (upper, room) = if v > 0.0 { (true, hi - p) } else { (false, p - lo) };
                 let least = self.least_excursion(robot, axis, upper, max_acceleration);
-                (least > room).then_some(BrakingExcess { robot, axis, upper, least, excess: least - room })
+                let excess = least - room;
+                (excess > 0.0).then_some(BrakingExcess {
+                    robot,
+                    axis,
+                    upper,
+                    least,
+                    excess,
+                    tolerated: excess <= slack,
+                })
             })
         })
     }
@@ -452,7 +460,7 @@ impl Problem {
                 }
             }
         }
-        for e in self.braking_excesses().filter(|e| e.excess > slack) {
+        for e in self.braking_excesses().filter(|e| !e.tolerated) {
             let against = Against::Braking { axis: e.axis, upper: e.upper };
             let closing = self.starts[e.robot].velocity[e.axis].abs();
             out.push(StartViolation { robot: e.robot, against, depth: e.excess / a, closing });

@@ -104,7 +104,7 @@ impl Recovery {
         let slack = FEASIBILITY_TOLERANCE * team.separation().0;
         // Starts that cannot stop before a side but past it by no more than
         // the tolerance: not violations, but no plan keeps them in the box.
-        let tolerated = problem.braking_excesses().filter(|e| e.excess <= slack).map(|e| {
+        let tolerated = problem.braking_excesses().filter(|e| e.tolerated).map(|e| {
             // Its least excursion with the slack, never past the tolerance.
             let out = ((1.0 + RECOVERY_SLACK) * e.least).min(e.least - e.excess + slack);
             let p = problem.starts[e.robot].position[e.axis];

@@ -70,6 +70,10 @@ pub struct BrakingExcess {
     pub least: f64,
     /// How far past the side that takes it (m, positive).
     pub excess: f64,
+    /// Whether that is within [`crate::problem::FEASIBILITY_TOLERANCE`]
+    /// (a floor the plan keeps to, [`crate::recovery`]) rather than beyond
+    /// it (a start violation, [`Against::Braking`]).
+    pub tolerated: bool,
 }
 
 /// A constraint a measured start violates beyond [`crate::problem::FEASIBILITY_TOLERANCE`]
