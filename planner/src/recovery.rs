@@ -97,8 +97,11 @@ pub struct Recovery {
 
 impl Recovery {
     /// The start violations of `problem`
-    /// ([`Problem::start_violations`]) with their floors. Does not
-    /// allocate when there are none.
+    /// ([`Problem::start_violations`]) with their floors, in a team with
+    /// start recovery (in any other they make the problem invalid), and in
+    /// every team the starts whose braking takes them past a side within
+    /// the tolerance ([`Problem::braking_excesses`]). Does not allocate
+    /// when there are none.
     pub fn of(problem: &Problem) -> Self {
         let team = &problem.team;
         let slack = FEASIBILITY_TOLERANCE * team.separation().0;
@@ -115,8 +118,11 @@ impl Recovery {
         // Without start recovery those floors hold for the whole plan.
         let until = team.start_recovery.unwrap_or(if tolerated.peek().is_some() { team.horizon } else { 0.0 });
         let quarter = team.start_recovery.unwrap_or(0.0) / 4.0;
-        let violations = problem
-            .start_violations()
+        // Only a team that recovers from its starts has floors for them (in
+        // any other, a start violation makes the problem invalid, and its
+        // floor must not last the tolerated ones' whole plan).
+        let measured = if team.start_recovery.is_some() { problem.start_violations() } else { Vec::new() };
+        let violations = measured
             .into_iter()
             .map(|v| {
                 let floor = match v.against {
@@ -374,6 +380,19 @@ mod tests {
             let t = k as f64 * 0.05;
             assert!(x(t) <= v[0].floor, "x({t}) = {}", x(t));
         }
+        // An obstacle reported on robot 2 makes the problem invalid for a
+        // team without start recovery: no floor for it (it would have been
+        // held for the whole plan, with the tolerated one).
+        let bumped = Problem {
+            obstacles: vec![Obstacle {
+                position: problem.starts[2].position,
+                velocity: Vector3::zeros(),
+                shape: Spheroid::ball(0.15),
+            }],
+            ..problem.clone()
+        };
+        assert!(matches!(bumped.validate(), Err(ProblemError::StartInObstacle { robot: 2, obstacle: 0 })));
+        assert_eq!(Recovery::of(&bumped), Recovery::of(&problem));
         // Slower, nothing to tolerate.
         let slow = Problem {
             starts: problem.starts.iter().map(|s| StartState { velocity: s.velocity * 0.5, ..*s }).collect(),
