@@ -272,6 +272,13 @@ impl Team {
         (2.0 * self.robot.radius, 2.0 * self.robot.half_height)
     }
 
+    /// How far past the workspace box a robot may be and still count as
+    /// inside it (m): [`FEASIBILITY_TOLERANCE`] of the horizontal
+    /// separation.
+    pub fn box_tolerance(&self) -> f64 {
+        FEASIBILITY_TOLERANCE * self.separation().0
+    }
+
     /// Robot-obstacle separations `(a_o, b_o)`: the obstacle inflated by the
     /// robot.
     pub fn obstacle_separation(&self, obstacle: &Spheroid) -> (f64, f64) {
@@ -408,7 +415,7 @@ impl Problem {
     /// it, a floor the plan keeps to ([`crate::recovery`]).
     pub fn braking_excesses(&self) -> impl Iterator<Item = BrakingExcess> + '_ {
         let team = &self.team;
-        let slack = FEASIBILITY_TOLERANCE * team.separation().0;
+        let slack = team.box_tolerance();
         let axes = team.dim.axes();
         team.max_acceleration.into_iter().flat_map(move |max_acceleration| {
             (0..self.starts.len() * axes).filter_map(move |k| {
@@ -445,7 +452,7 @@ impl Problem {
         let team = &self.team;
         let (a, b) = team.separation();
         let mut out = Vec::new();
-        let slack = FEASIBILITY_TOLERANCE * a;
+        let slack = team.box_tolerance();
         for (i, s) in
             self.starts.iter().enumerate().filter(|(_, s)| !team.workspace.contains(team.dim, &s.position, slack))
         {

@@ -61,7 +61,7 @@
 //! assert_eq!(recovery.bounds(1, 0, 1.0, (-1.0, 1.0)), (-1.0, 1.0));
 //! ```
 
-use crate::problem::{Against, FEASIBILITY_TOLERANCE, Problem};
+use crate::problem::{Against, Problem};
 
 /// How much deeper than measured a violation may become during recovery,
 /// as a share of the measured distance (or excess): room for the plan,
@@ -104,7 +104,7 @@ impl Recovery {
     /// when there are none.
     pub fn of(problem: &Problem) -> Self {
         let team = &problem.team;
-        let slack = FEASIBILITY_TOLERANCE * team.separation().0;
+        let slack = team.box_tolerance();
         // Starts that cannot stop before a side but past it by no more than
         // the tolerance: not violations, but no plan keeps them in the box.
         let tolerated = problem.braking_excesses().filter(|e| e.tolerated).map(|e| {

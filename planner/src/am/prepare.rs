@@ -121,14 +121,9 @@ impl Engine {
             verify: Limits::new(problem, &self.dense, 1.0 + self.settings.verify_margin, [0.0; 3])
                 .with_rules(chord, broad)
                 .with_recovery(problem, &recovery, &self.dense),
-            verify_start: Limits::new(
-                problem,
-                &self.dense_start,
-                1.0 - FEASIBILITY_TOLERANCE,
-                [-FEASIBILITY_TOLERANCE * t.separation().0; 3],
-            )
-            .with_rules(chord, broad)
-            .with_recovery(problem, &recovery, &self.dense_start),
+            verify_start: Limits::new(problem, &self.dense_start, 1.0 - FEASIBILITY_TOLERANCE, [-t.box_tolerance(); 3])
+                .with_rules(chord, broad)
+                .with_recovery(problem, &recovery, &self.dense_start),
             boundary: b,
         })
     }

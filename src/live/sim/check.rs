@@ -54,7 +54,7 @@ pub fn check(
     if m.min_robot_scaled < 1.0 - FEASIBILITY_TOLERANCE {
         return Err(Failure::Unverified(format!("robots come within {:.4} of the separation", m.min_robot_scaled)));
     }
-    if m.workspace_excess > FEASIBILITY_TOLERANCE * team.separation().0 {
+    if m.workspace_excess > team.box_tolerance() {
         return Err(Failure::Unverified(format!("a robot leaves the box by {:.4} m", m.workspace_excess)));
     }
     let off = f.at(now_ns).iter().zip(positions).map(|(k, p)| (k.position - p).norm()).fold(0.0, f64::max);
