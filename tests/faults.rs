@@ -99,7 +99,10 @@ fn a_restarted_controller_with_the_same_goals_gets_a_plan_from_its_robots_state(
     assert_eq!(answer.answers_sequence, 1);
     assert_eq!(answer.status(), Ok(PlanStatus::Ok), "{:?}", answer.reason());
     assert_eq!(answer.plan_origin_ns, answer.state_timestamp_ns, "made from the new controller's state");
-    starts_at(&answer, &p);
+    // A robot measured within the follow tolerance (5 mm) of the held plan
+    // starts where that plan has it (it has barely moved the robots in
+    // 0.5 s), the others where they were measured.
+    starts_within(&answer, &p, 0.005);
 }
 
 #[test]

@@ -41,18 +41,24 @@ impl Held {
         self.plan.deviation(seconds(self.origin_ns, origin_ns), &problem.starts)
     }
 
-    /// `world` with the robots where this plan has them at its time
-    /// (positions, velocities and accelerations): the start of a plan that
-    /// takes over from this one while the robots follow it (within the
-    /// follow tolerance, which every plan is verified to keep). A plan
-    /// started from the measurement instead starts off this one by the
-    /// tracking error and the mocap noise, and the robots, tracking this
-    /// one while it is made, leave its start by up to twice that.
-    pub(crate) fn anchored(&self, world: &World) -> World {
+    /// `world` with each robot measured within `tolerance` (m) of this
+    /// plan where the plan has it at its time (position, velocity and
+    /// acceleration), the others as measured: the start of a plan that
+    /// takes over from this one. A robot that follows it (within the follow
+    /// tolerance, which every plan is verified to keep) then joins the new
+    /// plan without a jump; started from the measurement instead, it would
+    /// start off this one by the tracking error and the mocap noise, and,
+    /// tracking this one while the new one is made, leave its start by up
+    /// to twice that. One robot knocked off the plan (a gust at 64 robots,
+    /// every half second) leaves every other robot on it, so that a warm
+    /// replan has one robot to move, not the whole team.
+    pub(crate) fn anchored(&self, world: &World, tolerance: f64) -> World {
         let mut problem = world.problem.clone();
         let elapsed = seconds(self.origin_ns, world.origin_ns).max(0.0);
         for (s, k) in problem.starts.iter_mut().zip(self.plan.at(elapsed)) {
-            *s = StartState { position: k.position, velocity: k.velocity, acceleration: k.acceleration };
+            if (k.position - s.position).norm() <= tolerance {
+                *s = StartState { position: k.position, velocity: k.velocity, acceleration: k.acceleration };
+            }
         }
         World { problem, ..world.clone() }
     }

@@ -19,13 +19,14 @@
 //!   replaces it; it is re-issued ([`Follow::Held`]) while it passes the
 //!   check above. One that no longer does is replaced at once by a stopping
 //!   plan verified against that world, or by nothing.
-//! - **Where new plans start.** While the robots follow the held plan (the
-//!   check above passes), a new plan starts where the held plan has them at
-//!   the snapshot's time, with its velocities and accelerations
-//!   ([`Held::anchored`]): the plans the controllers follow join without a
-//!   jump, and a plan that comes late still starts where the robots are
-//!   (they kept following the held one) up to the tracking error the
-//!   follow tolerance allows. Otherwise a plan starts from the measurement.
+//! - **Where new plans start.** A new plan starts each robot that follows
+//!   the held plan (measured within the follow tolerance of it) where the
+//!   held plan has it at the snapshot's time, with its velocity and
+//!   acceleration ([`Held::anchored`]), and every other robot from its
+//!   measurement: the plans the controllers follow join without a jump, a
+//!   plan that comes late still starts where the robots are (they kept
+//!   following the held one) up to the tracking error the follow tolerance
+//!   allows, and one robot knocked off the plan leaves the others on it.
 //! - **Warm start**, only from a plan the robots are on: when the goals are
 //!   unchanged and the measured state is within `warm_tolerance_m` of the
 //!   held plan at the snapshot's time, the held plan shifted in time
@@ -218,13 +219,26 @@ impl TeamPlanner {
         // the obstacles as they are now).
         let warm_from =
             self.held.as_ref().filter(|_| to_goals && deviation.is_some_and(|d| d <= self.rules.warm_tolerance));
-        // New plans start where the held plan has the robots while they
-        // follow it, else from the measurement.
-        let anchored = match (&self.held, &checked) {
-            (Some(h), Some(Ok(()))) => Some(h.anchored(&world)),
-            _ => None,
-        };
+        // New plans start where the held plan has each robot that follows
+        // it, the others from their measurement.
+        let anchored = self.held.as_ref().map(|h| h.anchored(&world, self.rules.follow_tolerance));
         let start = anchored.as_ref().unwrap_or(&world);
+        // The fallback, made before anything else can take the time: the
+        // held plan if it may be followed, else a stopping plan from the
+        // measurement (a few iterations as a rule; within half the
+        // deadline, so that the warm replan keeps its half; the cold
+        // threads have the cores meanwhile). Made after the warm replan and
+        // the repair of a left cold plan instead, it was left no time in 3
+        // of the 19 `NoPlan` answers of a 64-robot lab run, a walker closing
+        // in (docs/experiments/2026-11-28-lab64-walker-contacts.md).
+        let fallback = match checked {
+            Some(Ok(())) => Fallback::Held,
+            _ => {
+                let stop_until = until.min(Instant::now() + self.rules.deadline / 2);
+                let stop = self.stopping(&world, stop_until, &mut answer);
+                stop.map_or(Fallback::Nothing, |c| Fallback::Stop(Box::new(c)))
+            }
+        };
         if let Some(h) = warm_from {
             let (plan, origin) = (h.plan.clone(), h.origin_ns);
             let warm_until = until.min(Instant::now() + self.rules.deadline / 2);
@@ -255,13 +269,6 @@ impl TeamPlanner {
                 return self.adopt(candidate, answer);
             }
         }
-        // The fallback, made first so that the answer is on time: the held
-        // plan if it may be followed, else a stopping plan (a few iterations
-        // at most; the cold threads have the cores meanwhile).
-        let fallback = match checked {
-            Some(Ok(())) => Fallback::Held,
-            _ => self.stopping(&world, until, &mut answer).map_or(Fallback::Nothing, |c| Fallback::Stop(Box::new(c))),
-        };
         // Cold: keep a request for these goals and obstacles running, or start one.
         let running = self
             .pending
@@ -721,6 +728,34 @@ mod tests {
             assert!((k.position - h.position).norm() < 1e-6, "starts where the held plan has the robot");
             assert!((k.velocity - h.velocity).norm() < 1e-6, "at its velocity");
         }
+    }
+
+    #[test]
+    fn a_robot_knocked_off_the_plan_is_replanned_from_its_measurement_and_the_rest_from_the_plan() {
+        let config = config(16, "");
+        let mut planner = TeamPlanner::preload(&config).unwrap();
+        let team = planner.team().clone();
+        let problem = RandomScenario::new(team).generate(5).unwrap();
+        let mut knocked = on_the_plan_after(&mut planner, &problem, 0.4);
+        let held = planner.held().unwrap().plan.clone();
+        // Every robot measured 3 mm to one side of the plan (within the 5 mm
+        // follow tolerance) but robot 0, knocked 30 mm off it at 0.3 m/s
+        // (within the 50 mm warm tolerance): the plan may not be followed.
+        knocked.starts.iter_mut().for_each(|s| s.position.x += 0.003);
+        let side = Vector3::new(0.0, 1.0, 0.0);
+        knocked.starts[0].position += 0.027 * side;
+        knocked.starts[0].velocity += 0.3 * side;
+        let replanned = answer(&mut planner, &knocked, 1_400_000_000, Instant::now());
+        assert_eq!((replanned.follow, replanned.why, replanned.warm), (Follow::New, Why::None, true));
+        let new = planner.held().unwrap();
+        let (k, s) = (new.plan.at(0.0), &knocked.starts[0]);
+        assert!((k[0].position - s.position).norm() < 1e-9, "robot 0 starts where it was measured");
+        assert!((k[0].velocity - s.velocity).norm() < 1e-9, "at its measured velocity");
+        for (k, h) in k.iter().zip(held.at(0.4)).skip(1) {
+            assert!((k.position - h.position).norm() < 1e-6, "the others start where the held plan has them");
+            assert!((k.velocity - h.velocity).norm() < 1e-6, "at its velocity");
+        }
+        assert_verified_from(&planner, &knocked);
     }
 
     /// Plans `problem` from rest, then returns the problem of the robots

@@ -105,9 +105,15 @@ impl TeamPlanner {
         answer.stages.filter += t.elapsed();
         answer.iterations += outcome.iterations;
         if outcome.stop != Stop::Verified {
+            debug!(stop = ?outcome.stop, iterations = outcome.iterations, "no stopping plan");
             return None;
         }
-        let plan = self.within_limits(engine.plan(outcome.state.xi), &stop).ok()?;
+        let plan = engine.plan(outcome.state.xi);
+        let (speed, acceleration) = plan.peak_rates(DENSE_FACTOR * self.team.samples);
+        let Ok(plan) = self.within_limits(plan, &stop) else {
+            debug!(speed, acceleration, iterations = outcome.iterations, "the stopping plan is over the limits");
+            return None;
+        };
         let (origin_ns, sequence) = (world.origin_ns, world.sequence);
         Some(Candidate { plan, problem: stop, origin_ns, sequence, primal: outcome.primal })
     }

@@ -31,7 +31,9 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, Result, bail};
 use clap::Args;
 use flowopt_client::clock::monotonic_ns;
-use flowopt_client::{Endpoint, JointTrajectory, PlanStatus, PlanSubscriber, Reason, StatePublisher, TeamChannel};
+use flowopt_client::{
+    Endpoint, Followed, JointTrajectory, PlanStatus, PlanSubscriber, Reason, StatePublisher, TeamChannel,
+};
 use flowopt_daemon::config::{DaemonConfig, TeamConfig};
 use flowopt_planner::problem::{Obstacle, Problem, Team};
 use flowopt_planner::scenario::RandomScenario;
@@ -44,8 +46,8 @@ use crate::live::observe::{ObserveArgs, Observer, Watched};
 use check::{Failure, check};
 use lab::Lab;
 pub use lab::LabArgs;
-pub use report::{FaultReport, SimReport, print_report};
-use robots::Robots;
+pub use report::{CONTACTS_LOGGED, ContactEvent, FaultReport, SimReport, print_report};
+use robots::{Robots, Touch, Touched};
 pub use tally::Tally;
 use world::{SimObstacle, World};
 
@@ -121,6 +123,9 @@ impl Controller {
     }
 }
 
+/// How far back (s) a contact's report lists the answers before it.
+const RECENT_S: f64 = 0.5;
+
 /// The run's counters: the whole run and every fault window.
 struct Counters {
     overall: Tally,
@@ -132,6 +137,11 @@ struct Counters {
     expected: HashMap<u64, (usize, Reason)>,
     /// The daemon's deadline (ms).
     deadline_ms: f64,
+    /// The answers of the last [`RECENT_S`]: when (s into the run), status
+    /// and reason; the newest last.
+    recent: VecDeque<(f64, String)>,
+    /// When the newest `Ok` answer came (s into the run).
+    last_ok_s: Option<f64>,
 }
 
 impl Counters {
@@ -159,6 +169,13 @@ impl Counters {
             Err(_) => Some("unreadable".into()),
         };
         self.each(t, |tally| tally.message(status, reason.as_deref()));
+        while self.recent.front().is_some_and(|(at, _)| *at < t - RECENT_S) {
+            self.recent.pop_front();
+        }
+        self.recent.push_back((t, reason.as_ref().map_or_else(|| status.to_string(), |r| format!("{status} {r}"))));
+        if msg.status() == Ok(PlanStatus::Ok) {
+            self.last_ok_s = Some(t);
+        }
         if msg.status() == Ok(PlanStatus::NoPlan) {
             warn!(sequence = msg.answers_sequence, reason = ?msg.reason(), timings = ?msg.timings, "no plan");
         }
@@ -281,6 +298,8 @@ fn simulate(args: &SimArgs, config: &DaemonConfig, team_config: &TeamConfig) -> 
         answering_newest: 0,
         expected: HashMap::new(),
         deadline_ms: team_config.deadline_ms,
+        recent: VecDeque::new(),
+        last_ok_s: None,
     };
     let mut done = vec![false; schedule.len()];
     let mut report = SimReport { rate_hz: args.rate_hz, robots: team.robots, ..SimReport::default() };
@@ -351,10 +370,18 @@ fn simulate(args: &SimArgs, config: &DaemonConfig, team_config: &TeamConfig) -> 
             robots.obstacles_changed();
         }
         let motion = robots.step(followed.as_ref(), frozen, simulated_ns, now_ns, &obstacles_now);
+        for touch in motion.began.iter().take(CONTACTS_LOGGED.saturating_sub(report.contact_log.len())) {
+            report.contact_log.push(contact_event(
+                touch,
+                t - now_ns.saturating_sub(touch.at_ns) as f64 * 1e-9,
+                followed.as_ref(),
+                &counters,
+            ));
+        }
         obstacles_then = obstacles_now;
         simulated_ns = now_ns;
         counters.each(t, |tally| {
-            tally.motion(motion.closest, motion.contacts, motion.closest_obstacle, motion.obstacle_contacts);
+            tally.motion(motion.closest, motion.contacts(), motion.closest_obstacle, motion.obstacle_contacts());
             tally.workspace_excess_m = tally.workspace_excess_m.max(motion.workspace_excess);
         });
         if followed.is_some() && !frozen {
@@ -517,4 +544,33 @@ fn publish(
     })?;
     written?;
     Ok(sequence)
+}
+
+/// What a contact's report says: the contact, and what the team followed
+/// and was last told when it began (`at_s` into the run).
+fn contact_event(touch: &Touch, at_s: f64, followed: Option<&Followed>, counters: &Counters) -> ContactEvent {
+    let (other_robot, obstacle) = match touch.other {
+        Touched::Robot(j) => (Some(j), None),
+        Touched::Obstacle(m) => (None, Some(m)),
+    };
+    ContactEvent {
+        at_s,
+        robot: touch.robot,
+        other_robot,
+        obstacle,
+        speed_mps: touch.speed,
+        other_speed_mps: touch.other_speed,
+        position_m: touch.position.into(),
+        other_position_m: touch.other_position.into(),
+        following: followed.map(|f| format!("{:?}", f.status)),
+        plan_age_ms: followed.map(|f| (touch.at_ns as f64 - f.origin_ns as f64) * 1e-6),
+        last_answer: counters.recent.back().map(|(_, a)| a.clone()),
+        since_ok_ms: counters.last_ok_s.map(|ok| (at_s - ok) * 1e3),
+        answers_before: counters
+            .recent
+            .iter()
+            .filter(|(t, _)| *t >= at_s - RECENT_S)
+            .map(|(t, a)| ((at_s - t) * 1e3, a.clone()))
+            .collect(),
+    }
 }

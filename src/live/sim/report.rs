@@ -59,10 +59,72 @@ pub struct SimReport {
     pub faults: Vec<FaultReport>,
     /// The lab's day (with `--lab` or its options).
     pub lab: Option<LabReport>,
+    /// The run's first contacts of either kind, as each began (at most
+    /// [`CONTACTS_LOGGED`]; the tallies count all of them).
+    #[serde(default)]
+    pub contact_log: Vec<ContactEvent>,
+}
+
+/// How many contacts a run's report describes one by one.
+pub const CONTACTS_LOGGED: usize = 100;
+
+/// One contact as it began, with what the team was doing then.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct ContactEvent {
+    /// When it began (s into the run).
+    pub at_s: f64,
+    /// The robot (of a pair of robots, the lower index).
+    pub robot: usize,
+    /// The other robot's index, for a robot-robot contact.
+    pub other_robot: Option<usize>,
+    /// The obstacle's index in the world's list then, for a robot-obstacle
+    /// contact.
+    pub obstacle: Option<usize>,
+    /// The robot's speed (m/s).
+    pub speed_mps: f64,
+    /// The other robot's or the obstacle's speed (m/s).
+    pub other_speed_mps: f64,
+    /// Where the robot was (m).
+    pub position_m: [f64; 3],
+    /// Where the other robot or the obstacle was (m).
+    pub other_position_m: [f64; 3],
+    /// The status of the plan the team followed (`None`: it had none and
+    /// braked).
+    pub following: Option<String>,
+    /// How far into that plan the team was (ms from its time origin).
+    pub plan_age_ms: Option<f64>,
+    /// The newest answer's status and reason before the contact.
+    pub last_answer: Option<String>,
+    /// Time since the newest `Ok` answer (ms; `None` before any).
+    pub since_ok_ms: Option<f64>,
+    /// The answers of the half second before it, oldest first: how long
+    /// before the contact each came (ms), its status and reason.
+    pub answers_before: Vec<(f64, String)>,
 }
 
 /// Prints a report for people.
 pub fn print_report(r: &SimReport) {
+    print_summary(r);
+    for c in &r.contact_log {
+        let with = match (c.other_robot, c.obstacle) {
+            (Some(j), _) => format!("robot {j} at {:.2} m/s", c.other_speed_mps),
+            (None, Some(m)) => format!("obstacle {m} at {:.2} m/s", c.other_speed_mps),
+            (None, None) => "?".into(),
+        };
+        println!(
+            "contact at {:>6.2} s: robot {} at {:.2} m/s with {with}; following {} ({} ms in), last answer {}, {} ms since Ok",
+            c.at_s,
+            c.robot,
+            c.speed_mps,
+            c.following.as_deref().unwrap_or("nothing"),
+            c.plan_age_ms.map_or("-".into(), |a| format!("{a:.0}")),
+            c.last_answer.as_deref().unwrap_or("none"),
+            c.since_ok_ms.map_or("-".into(), |a| format!("{a:.0}")),
+        );
+    }
+}
+
+fn print_summary(r: &SimReport) {
     let t = &r.overall;
     println!(
         "{} robots, {:.0} s at {:.0} Hz: {} snapshots, {} messages",

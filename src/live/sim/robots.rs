@@ -30,22 +30,60 @@ const VELOCITY_NOISE: f64 = 0.005;
 const DISTURBANCE: f64 = 0.2;
 
 /// What one control period of motion showed.
-#[derive(Debug, Clone, Copy, Default)]
+#[derive(Debug, Clone, Default)]
 pub struct Motion {
     /// Closest robot-robot scaled distance in the period.
     pub closest: f64,
-    /// Robot-robot contacts begun in the period.
-    pub contacts: u64,
     /// Closest robot-obstacle scaled distance in the period (infinite
     /// without obstacles).
     pub closest_obstacle: f64,
-    /// Robot-obstacle contacts begun in the period.
-    pub obstacle_contacts: u64,
     /// Farthest any robot was outside the workspace (m).
     pub workspace_excess: f64,
     /// Mean and largest distance from the desired positions at the end (m;
     /// 0 without a trajectory).
     pub tracking: (f64, f64),
+    /// Each contact begun in the period, as it began.
+    pub began: Vec<Touch>,
+}
+
+impl Motion {
+    /// Robot-robot contacts begun in the period.
+    pub fn contacts(&self) -> u64 {
+        self.began.iter().filter(|t| matches!(t.other, Touched::Robot(_))).count() as u64
+    }
+
+    /// Robot-obstacle contacts begun in the period.
+    pub fn obstacle_contacts(&self) -> u64 {
+        self.began.len() as u64 - self.contacts()
+    }
+}
+
+/// A contact as it began, at an integration substep.
+#[derive(Debug, Clone, Copy)]
+pub struct Touch {
+    /// The substep's instant (ns, [`flowopt_client::clock::monotonic_ns`]).
+    pub at_ns: u64,
+    /// The robot (of a pair, the lower index).
+    pub robot: usize,
+    /// What it touched.
+    pub other: Touched,
+    /// The robot's speed (m/s).
+    pub speed: f64,
+    /// The other robot's or the obstacle's speed (m/s).
+    pub other_speed: f64,
+    /// Where the robot was (m).
+    pub position: Vector3<f64>,
+    /// Where the other robot or the obstacle was (m).
+    pub other_position: Vector3<f64>,
+}
+
+/// What a robot touched.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Touched {
+    /// Another robot, by index.
+    Robot(usize),
+    /// An obstacle, by index into the period's list.
+    Obstacle(usize),
 }
 
 /// The simulated team.
@@ -136,10 +174,10 @@ impl Robots {
                     self.position[i] += self.velocity[i] * h;
                 }
             }
-            self.count(&mut motion);
+            self.count(at, &mut motion);
             let moved: Vec<Obstacle> =
                 obstacles.iter().map(|o| Obstacle { position: o.at((at - from_ns) as f64 * 1e-9 + h), ..*o }).collect();
-            self.count_obstacles(&moved, &mut motion);
+            self.count_obstacles(at, &moved, &mut motion);
         }
         if let Some(f) = desired.filter(|_| !frozen) {
             let errors: Vec<f64> =
@@ -149,7 +187,7 @@ impl Robots {
         motion
     }
 
-    fn count(&mut self, motion: &mut Motion) {
+    fn count(&mut self, at_ns: u64, motion: &mut Motion) {
         let n = self.team.robots;
         let (a, b) = self.team.separation();
         let mut pair = 0;
@@ -158,7 +196,17 @@ impl Robots {
                 let d = scaled_norm(self.team.dim, &(self.position[i] - self.position[j]), a, b);
                 motion.closest = motion.closest.min(d);
                 let touching = d < 1.0;
-                motion.contacts += u64::from(touching && !self.touching[pair]);
+                if touching && !self.touching[pair] {
+                    motion.began.push(Touch {
+                        at_ns,
+                        robot: i,
+                        other: Touched::Robot(j),
+                        speed: self.velocity[i].norm(),
+                        other_speed: self.velocity[j].norm(),
+                        position: self.position[i],
+                        other_position: self.position[j],
+                    });
+                }
                 self.touching[pair] = touching;
                 pair += 1;
             }
@@ -170,14 +218,24 @@ impl Robots {
         }
     }
 
-    fn count_obstacles(&mut self, obstacles: &[Obstacle], motion: &mut Motion) {
+    fn count_obstacles(&mut self, at_ns: u64, obstacles: &[Obstacle], motion: &mut Motion) {
         for (i, touched) in self.touching_obstacle.iter_mut().enumerate() {
             for (m, o) in obstacles.iter().enumerate() {
                 let (a, b) = self.team.obstacle_separation(&o.shape);
                 let d = scaled_norm(self.team.dim, &(self.position[i] - o.position), a, b);
                 motion.closest_obstacle = motion.closest_obstacle.min(d);
                 let touching = d < 1.0;
-                motion.obstacle_contacts += u64::from(touching && !touched[m]);
+                if touching && !touched[m] {
+                    motion.began.push(Touch {
+                        at_ns,
+                        robot: i,
+                        other: Touched::Obstacle(m),
+                        speed: self.velocity[i].norm(),
+                        other_speed: o.velocity.norm(),
+                        position: self.position[i],
+                        other_position: o.position,
+                    });
+                }
                 touched[m] = touching;
             }
         }
@@ -257,5 +315,34 @@ mod tests {
         assert_eq!(robots.acting(10, push(3.0)), push(1.0), "the command of 10 ns ago");
         assert_eq!(robots.acting(12, push(4.0)), push(1.0), "acting until the next is due");
         assert_eq!(robots.acting(16, push(5.0)), push(2.0));
+    }
+
+    #[test]
+    fn each_contact_is_logged_once_as_it_begins_with_what_touched() {
+        let problem = RandomScenario::new(Team::default_for(Dim::Two, 2)).generate(1).unwrap();
+        let mut robots = Robots::new(&problem, 1);
+        let (a, _) = robots.team.separation();
+        // Robot 1 just clear of robot 0 and moving into it; robot 0 at rest,
+        // with an obstacle walking into it from the other side.
+        robots.position = vec![Vector3::zeros(), Vector3::new(1.05 * a, 0.0, 0.0)];
+        robots.velocity = vec![Vector3::zeros(), Vector3::new(-1.0, 0.0, 0.0)];
+        let (b, _) = robots.team.obstacle_separation(&robots.team.robot);
+        let walker = Obstacle {
+            position: Vector3::new(0.0, 1.05 * b, 0.0),
+            velocity: Vector3::new(0.0, -1.0, 0.0),
+            shape: robots.team.robot,
+        };
+        let first = robots.step(None, false, 0, 20_000_000, &[walker]);
+        let walked = Obstacle { position: walker.at(0.02), ..walker };
+        let second = robots.step(None, false, 20_000_000, 40_000_000, &[walked]);
+        assert_eq!((first.contacts(), first.obstacle_contacts()), (1, 1));
+        assert_eq!(first.began.len(), 2, "{:?}", first.began);
+        let pair = first.began.iter().find(|t| t.other == Touched::Robot(1)).expect("the pair");
+        assert_eq!(pair.robot, 0);
+        assert!(pair.other_speed > 0.5 && pair.speed < 0.5, "{pair:?}");
+        let hit = first.began.iter().find(|t| t.other == Touched::Obstacle(0)).expect("the walker");
+        assert_eq!(hit.robot, 0);
+        assert!((hit.other_speed - 1.0).abs() < 1e-12 && hit.at_ns > 0 && hit.at_ns < 20_000_000, "{hit:?}");
+        assert!(second.began.is_empty(), "still touching, not begun again: {:?}", second.began);
     }
 }
