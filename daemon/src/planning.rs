@@ -47,8 +47,9 @@
 //! - **Fallback** when nothing verified by the deadline: the held plan if it
 //!   passes the check; else a verified stopping plan (every robot brought to
 //!   rest along its motion, [`flowopt_planner::stopping`]; verified at the
-//!   true sizes, without the tracking buffer), computed before the cold
-//!   plan so that the answer is on time; else nothing ([`Follow::Nothing`]).
+//!   true sizes, without the tracking buffer), computed first, before any
+//!   new plan is tried (within half the deadline), so that the answer is on
+//!   time and has it; else nothing ([`Follow::Nothing`]).
 //! - **No measurement.** A snapshot rejected before its task (bad header,
 //!   clock, sequence or values) changes nothing: the held plan is re-issued
 //!   while the newest accepted snapshot is at most `stale_after_ms` old
