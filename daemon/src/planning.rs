@@ -196,6 +196,13 @@ impl TeamPlanner {
         Ok(())
     }
 
+    /// Half the deadline from now: the most one step of an answer (the
+    /// stopping plan, the warm replan) or a late cold result's repair may
+    /// take, so that another step keeps time.
+    fn half_deadline_from_now(&self) -> Instant {
+        Instant::now() + self.rules.deadline / 2
+    }
+
     /// The instant planning for an answer due at `deadline` must end.
     fn until(&self, deadline: Instant) -> Instant {
         let margin = PUBLISH_MARGIN.max(self.rules.deadline / 20);
@@ -235,14 +242,14 @@ impl TeamPlanner {
         let fallback = match checked {
             Some(Ok(())) => Fallback::Held,
             _ => {
-                let stop_until = until.min(Instant::now() + self.rules.deadline / 2);
+                let stop_until = until.min(self.half_deadline_from_now());
                 let stop = self.stopping(&world, stop_until, &mut answer);
                 stop.map_or(Fallback::Nothing, |c| Fallback::Stop(Box::new(c)))
             }
         };
         if let Some(h) = warm_from {
             let (plan, origin) = (h.plan.clone(), h.origin_ns);
-            let warm_until = until.min(Instant::now() + self.rules.deadline / 2);
+            let warm_until = until.min(self.half_deadline_from_now());
             match self.refine(&plan, seconds(origin, origin_ns), start, warm_until, &mut answer) {
                 Ok(Some(candidate)) => {
                     answer.warm = true;
@@ -345,7 +352,7 @@ impl TeamPlanner {
     /// repaired from there at once), returned as the answer to publish.
     pub(crate) fn on_cold(&mut self, result: RaceResult) -> Option<Answer> {
         let mut answer = Answer::new(Follow::Nothing, Why::None);
-        let until = Instant::now() + self.rules.deadline / 2;
+        let until = self.half_deadline_from_now();
         self.take_cold(result, &mut answer, until)
     }
 

@@ -109,8 +109,8 @@ impl TeamPlanner {
             return None;
         }
         let plan = engine.plan(outcome.state.xi);
-        let (speed, acceleration) = plan.peak_rates(DENSE_FACTOR * self.team.samples);
-        let Ok(plan) = self.within_limits(plan, &stop) else {
+        let Ok(plan) = self.within_limits(plan.clone(), &stop) else {
+            let (speed, acceleration) = plan.peak_rates(DENSE_FACTOR * self.team.samples);
             debug!(speed, acceleration, iterations = outcome.iterations, "the stopping plan is over the limits");
             return None;
         };
