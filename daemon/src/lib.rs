@@ -11,7 +11,8 @@
 //!   only from a plan the robots are on, cold plans (the race of
 //!   `flowopt_methods`), stopping plans; [`answer`] and [`held`]: what it
 //!   answers and holds; `preload`: building it; `repair`: the safety
-//!   filter's repairs and the limits it keeps;
+//!   filter's repairs and the limits it keeps; `stops`: the stopping
+//!   plans' engines, one set per stopping horizon;
 //! - [`http`]: the small HTTP server of the metrics and the live view's
 //!   page;
 //! - [`realtime`]: worker priority, memory locking and CPU pinning, each
@@ -33,6 +34,7 @@ mod preload;
 pub mod realtime;
 mod repair;
 mod serve;
+mod stops;
 mod worker;
 
 pub use preload::PreloadError;

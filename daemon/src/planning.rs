@@ -47,7 +47,8 @@
 //! - **Fallback** when nothing verified by the deadline: the held plan if it
 //!   passes the check; else a verified stopping plan (every robot brought to
 //!   rest along its motion, [`flowopt_planner::stopping`]; verified at the
-//!   true sizes, without the tracking buffer), computed first, before any
+//!   true sizes, without the tracking buffer; at the stopping horizon, else,
+//!   when that plan is refused, at twice it), computed first, before any
 //!   new plan is tried (within half the deadline), so that the answer is on
 //!   time and has it; else nothing ([`Follow::Nothing`]).
 //! - **No measurement.** A snapshot rejected before its task (bad header,
@@ -65,13 +66,13 @@ use flowopt_planner::am::EngineSet;
 use flowopt_planner::am::Recheck;
 use flowopt_planner::plan::JointPlan;
 use flowopt_planner::problem::{Problem, Team};
-use flowopt_planner::reference::SmoothReference;
 use flowopt_planner::route::Fitter;
 use nalgebra::Vector3;
 use tracing::debug;
 
 use crate::answer::{Answer, Follow, Kind, Why};
 use crate::held::{Candidate, Held, World, same_goals, seconds};
+use crate::stops::Stops;
 
 /// Time kept before the deadline to publish an answer: at least this, and
 /// a twentieth of the deadline (the planners check their budget every few
@@ -127,9 +128,8 @@ pub struct TeamPlanner {
     pub(crate) rules: Rules,
     /// Warm-start safety filters, one per obstacle count.
     pub(crate) filters: EngineSet,
-    /// Stopping-plan safety filters (the stopping horizon), one per count.
-    pub(crate) stops: EngineSet,
-    pub(crate) stop_reference: SmoothReference,
+    /// Stopping plans' engines, one set per horizon, in the order tried.
+    pub(crate) stops: Vec<Stops>,
     pub(crate) fitter: Fitter,
     /// The obstacle checks of held plans against the newest world: plans
     /// to the goals with the tracking buffer, stopping plans without.
@@ -849,7 +849,7 @@ mod tests {
     fn a_robot_a_walker_comes_through_is_stopped_beside_its_track() {
         let mut planner = TeamPlanner::preload(&config(8, "")).unwrap();
         let problem = RandomScenario::new(planner.team().clone()).generate(11).unwrap();
-        let horizon = planner.stops.team().horizon;
+        let horizon = planner.stops[0].engines.team().horizon;
         // A walker at 0.4 m/s reaching a robot at rest 1.2 s from now (at
         // the stopping horizon it is over where the robot would rest), its
         // way there and on for 2.5 s clear of every other robot (a robot
@@ -874,6 +874,44 @@ mod tests {
         // Robot i rests beside the walker's track.
         let rest = planner.held().unwrap().plan.at(horizon)[i].position;
         assert!((rest.x - here.x).abs() > 0.2, "{rest:?} from {here:?}");
+    }
+
+    #[test]
+    fn a_robot_that_cannot_stop_short_of_a_walkers_track_within_the_limits_stops_beyond_it_over_the_longer_horizon() {
+        let mut planner = TeamPlanner::preload(&config(2, "")).unwrap();
+        let horizons: Vec<f64> = planner.stops.iter().map(|s| s.engines.team().horizon).collect();
+        assert_eq!(horizons, [1.0, 2.0], "the stopping horizon and twice it");
+        // Robot 0 at top speed towards a walker's track; robot 1 at rest,
+        // out of the way. Its stopping point at 1 s (0.75 m ahead) is on
+        // the track the walker crosses 0.5 s later: stepped back towards
+        // the start, it stops short harder than the limit allows. Over 2 s
+        // it rests beyond the track, crossing it while the walker is still
+        // 0.4 m away.
+        let (x0, v) = (-0.8, 1.5);
+        let track = x0 + v * horizons[0] / 2.0;
+        let mut problem = RandomScenario::new(planner.team().clone()).generate(1).unwrap();
+        problem.starts = vec![
+            StartState { velocity: Vector3::new(v, 0.0, 0.0), ..StartState::at_rest(Vector3::new(x0, 0.0, 0.0)) },
+            StartState::at_rest(Vector3::new(-0.8, -0.8, 0.0)),
+        ];
+        problem.goals = vec![Vector3::new(0.8, 0.0, 0.0), Vector3::new(-0.8, -0.8, 0.0)];
+        let walker = Vector3::new(0.0, -0.4, 0.0);
+        problem.obstacles = vec![obstacle(Vector3::new(track, 0.6, 0.0), walker)];
+        problem.validate().unwrap();
+        let world = |planner: &mut TeamPlanner| {
+            planner.observe(problem.clone(), 1_000_000_000, 1, Instant::now() + Duration::from_secs(1))
+        };
+        let mut short = TeamPlanner::preload(&config(2, "")).unwrap();
+        short.stops.truncate(1);
+        assert_eq!(world(&mut short).follow, Follow::Nothing, "at the stopping horizon alone");
+        let a = world(&mut planner);
+        assert_eq!(a.follow, Follow::Stopping, "{a:?}");
+        let held = &planner.held().unwrap().plan;
+        assert_eq!(held.horizon, horizons[1]);
+        let (speed, acceleration) = held.peak_rates(200);
+        assert!(speed <= 1.5 + 1e-9 && acceleration <= 3.0 + 1e-9, "{speed} m/s, {acceleration} m/s^2");
+        assert!(held.at(held.horizon)[0].position.x > track + 0.2, "rests beyond the track");
+        clears(&planner, &problem, 1_000_000_000);
     }
 
     #[test]

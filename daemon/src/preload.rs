@@ -18,6 +18,7 @@ use tracing::info;
 
 use crate::config::{ConfigError, TeamConfig};
 use crate::planning::{Rules, TeamPlanner};
+use crate::stops::Stops;
 
 /// Iteration cap of the warm-start safety filter (about 10 ms for 16
 /// robots); it also gets at most half the deadline, leaving the rest to a
@@ -68,18 +69,26 @@ impl TeamPlanner {
         let filter_settings =
             buffered(AmSettings { max_iterations: WARM_ITERATIONS, threads, ..AmSettings::safety_filter() }, buffer);
         let filters = EngineSet::preloaded(&team, Objective::Projection, filter_settings, max)?;
-        let stop_horizon = config.stop_horizon();
-        let stop_team = stopping_team(&team, stop_horizon);
         // Stopping plans, the last resort before none, are verified at the
         // true sizes: robots a jam has left within the buffer of each other
         // are then still held apart under control instead of braking on
         // their own (and drifting) with no plan at all.
         let stop_settings = AmSettings { verify_margin: 0.0, threads, ..buffered(AmSettings::safety_filter(), buffer) };
-        let stops = EngineSet::preloaded(&stop_team, Objective::Projection, stop_settings, max)?;
-        let stop_reference = SmoothReference::new(&stop_team).map_err(|e| match e {
-            ReferenceError::Basis(b) => EngineError::Problem(b.into()),
-            ReferenceError::Kkt(k) => EngineError::Kkt(k),
-        })?;
+        let stops = config
+            .stop_horizons()
+            .into_iter()
+            .map(|horizon| {
+                let stop_team = stopping_team(&team, horizon);
+                let engines = EngineSet::preloaded(&stop_team, Objective::Projection, stop_settings, max)?;
+                let reference = SmoothReference::new(&stop_team).map_err(|e| match e {
+                    ReferenceError::Basis(b) => EngineError::Problem(b.into()),
+                    ReferenceError::Kkt(k) => EngineError::Kkt(k),
+                })?;
+                Ok(Stops { engines, reference })
+            })
+            .collect::<Result<Vec<_>, EngineError>>()?;
+        // The check of held stopping plans (each on its own horizon's grid).
+        let stop_team = stopping_team(&team, config.stop_horizon());
         let basis = team.basis().map_err(|e| EngineError::Problem(e.into()))?;
         let fitter = Fitter::new(&basis).map_err(EngineError::Kkt)?;
         let (racers, alone) = members(&settings, &team)?;
@@ -112,7 +121,6 @@ impl TeamPlanner {
             },
             filters,
             stops,
-            stop_reference,
             fitter,
             cold,
             held: None,

@@ -16,6 +16,7 @@ use tracing::{debug, info_span};
 use crate::answer::{Answer, Why};
 use crate::held::{Candidate, World};
 use crate::planning::TeamPlanner;
+use crate::stops::Stops;
 
 /// Start speed (m/s) below which a robot counts as at rest, so that a plan
 /// may be stretched in time without changing its start.
@@ -78,13 +79,19 @@ impl TeamPlanner {
     }
 
     /// A verified stopping plan from `world`'s state against its
-    /// obstacles, within the limits, made by `until`.
+    /// obstacles, within the limits, made by `until`: at the stopping
+    /// horizon, else at the longer one ([`crate::config::TeamConfig::stop_horizons`]).
     pub(crate) fn stopping(&self, world: &World, until: Instant, answer: &mut Answer) -> Option<Candidate> {
-        let _span = info_span!("stopping").entered();
+        self.stops.iter().find_map(|stops| self.stopping_at(stops, world, until, answer))
+    }
+
+    /// [`Self::stopping`] at the horizon of `stops`.
+    fn stopping_at(&self, stops: &Stops, world: &World, until: Instant, answer: &mut Answer) -> Option<Candidate> {
+        let _span = info_span!("stopping", horizon = stops.engines.team().horizon).entered();
         let t = Instant::now();
         let inset = self.team.robot.radius * AmSettings::safety_filter().margin;
-        let plain = stopping_problem(&world.problem, self.stops.team().horizon, inset);
-        let engine = self.stops.get(plain.obstacles.len())?;
+        let plain = stopping_problem(&world.problem, stops.engines.team().horizon, inset);
+        let engine = stops.engines.get(plain.obstacles.len())?;
         // Stopping points stepped aside from obstacles' tracks and from each
         // other; the plain ones where a move made the problem invalid (a
         // point pushed into another obstacle). Validated by `prepare`; why
@@ -92,7 +99,7 @@ impl TeamPlanner {
         // the 64-robot lab, docs/experiments/2026-11-27-stopping-beside-walkers.md).
         let aside = Some(stepped_aside(&plain, inset)).filter(|a| a.goals != plain.goals);
         let (stop, prepared) = aside.into_iter().chain([plain]).find_map(|stop| {
-            let sample = self.stop_reference.coefficients(&stop);
+            let sample = stops.reference.coefficients(&stop);
             match engine.prepare(&stop, Some(&sample)) {
                 Ok(prepared) => Some((stop, prepared)),
                 Err(e) => {
@@ -114,6 +121,7 @@ impl TeamPlanner {
             debug!(speed, acceleration, iterations = outcome.iterations, "the stopping plan is over the limits");
             return None;
         };
+        debug!(iterations = outcome.iterations, "a stopping plan");
         let (origin_ns, sequence) = (world.origin_ns, world.sequence);
         Some(Candidate { plan, problem: stop, origin_ns, sequence, primal: outcome.primal })
     }

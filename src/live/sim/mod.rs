@@ -248,7 +248,7 @@ fn simulate(args: &SimArgs, config: &DaemonConfig, team_config: &TeamConfig) -> 
     // use, its linear programs (3-23 ms each) stalled control periods by
     // up to 246 ms.
     if let Some(a) = team.max_acceleration {
-        for horizon in [team.horizon, team_config.stop_horizon()] {
+        for horizon in std::iter::once(team.horizon).chain(team_config.stop_horizons()) {
             flowopt_planner::braking::prepare(team.degree, team.samples, horizon, a);
         }
     }
