@@ -4,7 +4,7 @@
 
 use flowopt_planner::metrics::DENSE_FACTOR;
 use flowopt_planner::plan::JointPlan;
-use flowopt_planner::problem::{Problem, StartState};
+use flowopt_planner::problem::Problem;
 use nalgebra::Vector3;
 
 use crate::answer::Kind;
@@ -56,8 +56,8 @@ impl Held {
         let mut problem = world.problem.clone();
         let elapsed = seconds(self.origin_ns, world.origin_ns).max(0.0);
         for (s, k) in problem.starts.iter_mut().zip(self.plan.at(elapsed)) {
-            if (k.position - s.position).norm() <= tolerance {
-                *s = StartState { position: k.position, velocity: k.velocity, acceleration: k.acceleration };
+            if k.deviation(s) <= tolerance {
+                *s = k.into();
             }
         }
         World { problem, ..world.clone() }

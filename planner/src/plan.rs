@@ -18,6 +18,22 @@ pub struct Kinematics {
     pub acceleration: Vector3<f64>,
 }
 
+impl Kinematics {
+    /// How far (m) the robot measured in `measured` is from this state:
+    /// the distance between the positions, the measure a robot follows a
+    /// plan by ([`JointPlan::deviation`]).
+    pub fn deviation(&self, measured: &StartState) -> f64 {
+        (self.position - measured.position).norm()
+    }
+}
+
+impl From<Kinematics> for StartState {
+    /// A plan's state at an instant as the start of another plan.
+    fn from(k: Kinematics) -> Self {
+        StartState { position: k.position, velocity: k.velocity, acceleration: k.acceleration }
+    }
+}
+
 /// The Bernstein rows of position, velocity and acceleration at one
 /// instant of a plan: evaluates any robot's coefficients there.
 #[derive(Debug, Clone)]
@@ -100,7 +116,7 @@ impl JointPlan {
     /// `starts` and where this plan has it `t` seconds after its origin:
     /// how far the robots are from following it.
     pub fn deviation(&self, t: f64, starts: &[StartState]) -> f64 {
-        self.at(t).iter().zip(starts).map(|(k, s)| (k.position - s.position).norm()).fold(0.0, f64::max)
+        self.at(t).iter().zip(starts).map(|(k, s)| k.deviation(s)).fold(0.0, f64::max)
     }
 
     /// The largest speed (m/s) and acceleration (m/s^2) of any robot at

@@ -43,10 +43,7 @@ pub fn check(
     let end = f.plan.at(f.plan.horizon);
     let problem = Problem {
         team: Team { horizon: f.plan.horizon, ..team.clone() },
-        starts: start
-            .iter()
-            .map(|k| StartState { position: k.position, velocity: k.velocity, acceleration: k.acceleration })
-            .collect(),
+        starts: start.into_iter().map(StartState::from).collect(),
         goals: end.iter().map(|k| k.position).collect(),
         obstacles: Vec::new(),
     };
