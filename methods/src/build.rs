@@ -66,7 +66,8 @@ pub type Variant = (&'static str, fn(AmSettings) -> AmSettings);
 
 /// Optimiser variants `auto` races beside the optimiser where cores are
 /// idle, in the order they are added: the penalty doubling every 100
-/// iterations instead of 50 (docs/BENCHMARKS.md, "What each change does"),
+/// iterations instead of every 25 (50 before 2026-11-28; docs/BENCHMARKS.md,
+/// "What each change does"),
 /// and no veering start (the straight lines). On a 16-core host they made
 /// `auto` faster with obstacles and crossings (16 robots + 8 obstacles
 /// 4.13 against 7.37 ms) and no worse elsewhere beyond its noise

@@ -171,6 +171,7 @@ impl Engine {
     /// pair per penalty level.
     pub fn new(team: &Team, obstacles: usize, objective: Objective, settings: AmSettings) -> Result<Self, EngineError> {
         team.validate()?;
+        let settings = AmSettings { rho: settings.rho.for_team(team.robots), ..settings };
         let basis = team.basis().map_err(ProblemError::from)?;
         let n_xi = basis.n_xi();
         let k = basis.samples();

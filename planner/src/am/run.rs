@@ -286,6 +286,12 @@ mod tests {
         assert_eq!([attempts(128), attempts(256), attempts(1000)], [3, 1, 1]);
     }
 
+    #[test]
+    fn the_engine_runs_the_penalty_schedule_of_its_teams_size() {
+        let every = |robots| optimiser(&Team::default_for(Dim::Two, robots), 0).settings().rho.every;
+        assert_eq!([every(16), every(32), every(33), every(64)], [25, 25, 50, 50]);
+    }
+
     fn optimiser(team: &Team, obstacles: usize) -> Engine {
         Engine::new(team, obstacles, Objective::smoothness(), AmSettings::optimiser()).unwrap()
     }

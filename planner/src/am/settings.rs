@@ -2,7 +2,9 @@
 
 use serde::{Deserialize, Serialize};
 
-/// Penalty schedule: `rho_l = min(max, initial * factor^(l / every))`.
+/// Penalty schedule: `rho_l = min(max, initial * factor^(l / every))`,
+/// with stages of `big_team_every` iterations instead for teams of more than
+/// `big_team` robots ([`Self::for_team`]; the engine resolves it).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct RhoSchedule {
@@ -14,12 +16,25 @@ pub struct RhoSchedule {
     pub every: usize,
     /// Ceiling.
     pub max: f64,
+    /// Teams of more than this many robots use `big_team_every` (0: every
+    /// team uses `every`).
+    #[serde(default)]
+    pub big_team: usize,
+    /// Iterations per stage for teams of more than `big_team` robots.
+    #[serde(default)]
+    pub big_team_every: usize,
 }
 
 impl RhoSchedule {
     /// A constant penalty.
     pub fn constant(rho: f64) -> Self {
-        Self { initial: rho, factor: 1.0, every: usize::MAX, max: rho }
+        Self { initial: rho, factor: 1.0, every: usize::MAX, max: rho, big_team: 0, big_team_every: 0 }
+    }
+
+    /// The schedule a team of `robots` runs: stages of `big_team_every`
+    /// iterations for a team of more than `big_team` robots, else `every`.
+    pub fn for_team(self, robots: usize) -> Self {
+        if self.big_team > 0 && robots > self.big_team { Self { every: self.big_team_every, ..self } } else { self }
     }
 
     /// The distinct penalty values, in order (at most 64).
@@ -130,16 +145,20 @@ pub struct AmSettings {
 }
 
 impl AmSettings {
-    /// Defaults for the from-scratch optimiser. The penalty doubles every 50
-    /// iterations (was 200): fewer iterations at every team size measured
-    /// (seed 11, median time / mean iterations: 16 random robots 1.7 ms / 77
-    /// -> 1.6 ms / 70, 16 + 8 obstacles 8.4 / 1068 -> 5.8 / 963, crowds of
-    /// 64 54 / 382 -> 38 / 228 and 128 372 / 783 -> 290 / 587, all verified
-    /// as often; doubling every 25 costs the crowds more than it saves;
-    /// docs/BENCHMARKS.md).
+    /// Defaults for the from-scratch optimiser. The penalty doubles every 25
+    /// iterations up to 100 for teams of up to 32 robots, every 50 for
+    /// bigger ones. Plans from motion end just after the penalty reaches its
+    /// top: doubling every 25 instead of 50 took the median of 16 robots
+    /// starting at up to 1.0 m/s from 390 to 240 iterations, and from rest
+    /// 0-30% fewer up to 32 robots, verified as often, random and moving
+    /// teams as smooth within 5% (clutter 8-37% rougher). Bigger teams keep
+    /// 50: at 64 robots it saved iterations but plans were 15-36% less
+    /// smooth, at 128 it took more (from motion 520 -> 590) and one
+    /// 256-robot crowd twice as many
+    /// (docs/experiments/2026-11-28-penalty-schedule-by-team-size.md).
     pub fn optimiser() -> Self {
         Self {
-            rho: RhoSchedule { initial: 1.0, factor: 2.0, every: 50, max: 100.0 },
+            rho: RhoSchedule { initial: 1.0, factor: 2.0, every: 25, max: 100.0, big_team: 32, big_team_every: 50 },
             tolerance: 0.01,
             max_iterations: 10_000,
             margin: 0.05,
@@ -166,7 +185,7 @@ impl AmSettings {
     /// with this schedule; docs/LEARNED.md).
     pub fn safety_filter() -> Self {
         Self {
-            rho: RhoSchedule { initial: 5.0, factor: 2.0, every: 25, max: 80.0 },
+            rho: RhoSchedule { initial: 5.0, factor: 2.0, every: 25, max: 80.0, big_team: 0, big_team_every: 0 },
             tolerance: 0.01,
             max_iterations: 500,
             margin: 0.05,
@@ -217,12 +236,22 @@ mod tests {
 
     #[test]
     fn schedule_levels_grow_to_the_ceiling() {
-        let s = RhoSchedule { initial: 1.0, factor: 2.0, every: 100, max: 10.0 };
+        let s = RhoSchedule { initial: 1.0, factor: 2.0, every: 100, max: 10.0, big_team: 0, big_team_every: 0 };
         assert_eq!(s.levels(), vec![1.0, 2.0, 4.0, 8.0, 10.0]);
         assert_eq!(s.level_at(0, 5), 0);
         assert_eq!(s.level_at(250, 5), 2);
         assert_eq!(s.level_at(10_000, 5), 4);
         assert_eq!(RhoSchedule::constant(3.0).levels(), vec![3.0]);
         assert_eq!(RhoSchedule::constant(3.0).level_at(1_000_000, 1), 0);
+    }
+
+    #[test]
+    fn teams_of_more_than_big_team_robots_step_at_their_own_pace() {
+        let s = AmSettings::optimiser().rho;
+        assert_eq!([s.for_team(16).every, s.for_team(32).every], [25, 25]);
+        assert_eq!([s.for_team(33).every, s.for_team(256).every], [50, 50]);
+        let one = RhoSchedule { big_team: 0, ..s };
+        assert_eq!(one.for_team(256).every, 25, "big_team 0: one pace for every team");
+        assert_eq!(s.for_team(256).levels(), s.levels(), "the same penalties, reached at another pace");
     }
 }
