@@ -300,7 +300,8 @@ impl TeamPlanner {
             }
         }
         if self.pending.is_none() && why == Why::DeadlineMissed {
-            why = Why::NotVerified;
+            // A verified cold plan refused over the limits says so.
+            why = if answer.why == Why::Limits { Why::Limits } else { Why::NotVerified };
         }
         let why = match checked {
             Some(Err(w)) => w,
@@ -395,13 +396,16 @@ impl TeamPlanner {
         if !same_goals(&candidate.problem.goals, &world.problem) {
             return None;
         }
-        if self.may_follow(&candidate.plan, candidate.origin_ns, Kind::Goals, &world).is_ok() {
+        let followable = self.may_follow(&candidate.plan, candidate.origin_ns, Kind::Goals, &world);
+        if followable.is_ok() {
             return Some(self.adopt(candidate, won(answer)));
         }
         let dt = seconds(candidate.origin_ns, world.origin_ns);
         match self.refine(&candidate.plan, dt, &world, until, answer) {
             Ok(Some(repaired)) => Some(self.adopt(repaired, won(answer))),
-            _ => {
+            repair => {
+                let deviation = candidate.plan.deviation(dt, &world.problem.starts);
+                debug!(?followable, dt, deviation, repaired = ?repair.map(|c| c.is_some()), "a verified cold plan not followable, not repaired");
                 self.fresh = Some(candidate);
                 None
             }
@@ -443,7 +447,7 @@ mod tests {
     use super::*;
     use crate::config::TeamConfig;
     use crate::preload::PreloadError;
-    use flowopt_planner::am::AmSettings;
+    use flowopt_planner::am::{AmSettings, Objective};
     use flowopt_planner::metrics::Metrics;
     use flowopt_planner::problem::{Dim, Obstacle, Spheroid, StartState};
     use flowopt_planner::scenario::RandomScenario;
@@ -876,19 +880,12 @@ mod tests {
         assert!((rest.x - here.x).abs() > 0.2, "{rest:?} from {here:?}");
     }
 
-    #[test]
-    fn a_robot_that_cannot_stop_short_of_a_walkers_track_within_the_limits_stops_beyond_it_over_the_longer_horizon() {
-        let mut planner = TeamPlanner::preload(&config(2, "")).unwrap();
-        let horizons: Vec<f64> = planner.stops.iter().map(|s| s.engines.team().horizon).collect();
-        assert_eq!(horizons, [1.0, 2.0], "the stopping horizon and twice it");
-        // Robot 0 at top speed towards a walker's track; robot 1 at rest,
-        // out of the way. Its stopping point at 1 s (0.75 m ahead) is on
-        // the track the walker crosses 0.5 s later: stepped back towards
-        // the start, it stops short harder than the limit allows. Over 2 s
-        // it rests beyond the track, crossing it while the walker is still
-        // 0.4 m away.
+    /// Robot 0 at top speed towards a walker's track; robot 1 at rest, out
+    /// of the way. Its stopping point at 1 s (0.75 m ahead) is on the
+    /// track the walker crosses 0.5 s later.
+    fn towards_a_walkers_track(planner: &TeamPlanner) -> (Problem, f64) {
         let (x0, v) = (-0.8, 1.5);
-        let track = x0 + v * horizons[0] / 2.0;
+        let track = x0 + v * planner.stops[0].engines.team().horizon / 2.0;
         let mut problem = RandomScenario::new(planner.team().clone()).generate(1).unwrap();
         problem.starts = vec![
             StartState { velocity: Vector3::new(v, 0.0, 0.0), ..StartState::at_rest(Vector3::new(x0, 0.0, 0.0)) },
@@ -898,19 +895,61 @@ mod tests {
         let walker = Vector3::new(0.0, -0.4, 0.0);
         problem.obstacles = vec![obstacle(Vector3::new(track, 0.6, 0.0), walker)];
         problem.validate().unwrap();
-        let world = |planner: &mut TeamPlanner| {
-            planner.observe(problem.clone(), 1_000_000_000, 1, Instant::now() + Duration::from_secs(1))
-        };
-        let mut short = TeamPlanner::preload(&config(2, "")).unwrap();
-        short.stops.truncate(1);
-        assert_eq!(world(&mut short).follow, Follow::Nothing, "at the stopping horizon alone");
-        let a = world(&mut planner);
+        (problem, track)
+    }
+
+    fn observed(planner: &mut TeamPlanner, problem: &Problem) -> Answer {
+        planner.observe(problem.clone(), 1_000_000_000, 1, Instant::now() + Duration::from_secs(1))
+    }
+
+    /// The stopping horizon's filters (for one obstacle) rebuilt with
+    /// `change` made to their settings.
+    fn restop(planner: &mut TeamPlanner, change: impl Fn(&mut AmSettings)) {
+        let engine = planner.stops[0].engines.get(1).unwrap();
+        let mut settings = *engine.settings();
+        change(&mut settings);
+        planner.stops[0].engines = EngineSet::preloaded(engine.team(), Objective::Projection, settings, 1).unwrap();
+    }
+
+    fn within_the_limits(plan: &JointPlan) {
+        let (speed, acceleration) = plan.peak_rates(200);
+        assert!(speed <= 1.5 + 1e-9 && acceleration <= 3.0 + 1e-9, "{speed} m/s, {acceleration} m/s^2");
+    }
+
+    #[test]
+    fn a_robot_that_must_stop_short_of_a_walkers_track_is_stopped_within_the_acceleration_limit() {
+        let mut planner = TeamPlanner::preload(&config(2, "")).unwrap();
+        let (problem, track) = towards_a_walkers_track(&planner);
+        // Its stopping point stepped back towards the start, the repair
+        // without the limit stops short over it and is refused; with the
+        // limit a constraint of the repair it stops short within it.
+        let mut unlimited = TeamPlanner::preload(&config(2, "")).unwrap();
+        unlimited.stops.truncate(1);
+        restop(&mut unlimited, |s| s.limit_acceleration = false);
+        assert_eq!(observed(&mut unlimited, &problem).follow, Follow::Nothing, "without the limit");
+        let a = observed(&mut planner, &problem);
+        assert_eq!(a.follow, Follow::Stopping, "{a:?}");
+        let held = &planner.held().unwrap().plan;
+        assert_eq!(held.horizon, planner.stops[0].engines.team().horizon);
+        within_the_limits(held);
+        assert!(held.at(held.horizon)[0].position.x < track - 0.2, "rests short of the track");
+        clears(&planner, &problem, 1_000_000_000);
+    }
+
+    #[test]
+    fn a_stopping_plan_refused_at_the_stopping_horizon_is_made_over_the_longer_one() {
+        let mut planner = TeamPlanner::preload(&config(2, "")).unwrap();
+        let horizons: Vec<f64> = planner.stops.iter().map(|s| s.engines.team().horizon).collect();
+        assert_eq!(horizons, [1.0, 2.0], "the stopping horizon and twice it");
+        let (problem, _) = towards_a_walkers_track(&planner);
+        // The stopping horizon's filter allowed no iteration: its plan is
+        // the braking reference, which runs into the walker's track.
+        restop(&mut planner, |s| s.max_iterations = 0);
+        let a = observed(&mut planner, &problem);
         assert_eq!(a.follow, Follow::Stopping, "{a:?}");
         let held = &planner.held().unwrap().plan;
         assert_eq!(held.horizon, horizons[1]);
-        let (speed, acceleration) = held.peak_rates(200);
-        assert!(speed <= 1.5 + 1e-9 && acceleration <= 3.0 + 1e-9, "{speed} m/s, {acceleration} m/s^2");
-        assert!(held.at(held.horizon)[0].position.x > track + 0.2, "rests beyond the track");
+        within_the_limits(held);
         clears(&planner, &problem, 1_000_000_000);
     }
 

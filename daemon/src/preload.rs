@@ -72,8 +72,18 @@ impl TeamPlanner {
         // Stopping plans, the last resort before none, are verified at the
         // true sizes: robots a jam has left within the buffer of each other
         // are then still held apart under control instead of braking on
-        // their own (and drifting) with no plan at all.
-        let stop_settings = AmSettings { verify_margin: 0.0, threads, ..buffered(AmSettings::safety_filter(), buffer) };
+        // their own (and drifting) with no plan at all. They keep the
+        // acceleration limit as they are made: repaired without it, most
+        // refused ones were over it, and the team was left with no plan
+        // (16-robot lab, seeds 0-11: `NoPlan` 49 and contacts in 4 runs
+        // without it, 6 and none with it;
+        // docs/experiments/2026-11-28-acceleration-limit-in-stopping-plans.md).
+        let stop_settings = AmSettings {
+            verify_margin: 0.0,
+            threads,
+            limit_acceleration: true,
+            ..buffered(AmSettings::safety_filter(), buffer)
+        };
         let stops = config
             .stop_horizons()
             .into_iter()

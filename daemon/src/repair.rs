@@ -74,6 +74,7 @@ impl TeamPlanner {
         if at_rest && static_obstacles && factor.is_finite() {
             Ok(plan.stretched(factor * (1.0 + 1e-6)))
         } else {
+            debug!(speed, acceleration, "a plan over the limits");
             Err(Why::Limits)
         }
     }
@@ -82,7 +83,13 @@ impl TeamPlanner {
     /// obstacles, within the limits, made by `until`: at the stopping
     /// horizon, else at the longer one ([`crate::config::TeamConfig::stop_horizons`]).
     pub(crate) fn stopping(&self, world: &World, until: Instant, answer: &mut Answer) -> Option<Candidate> {
-        self.stops.iter().find_map(|stops| self.stopping_at(stops, world, until, answer))
+        let count = self.stops.len();
+        self.stops.iter().enumerate().find_map(|(h, stops)| {
+            // Each horizon an equal share of the time left, so that one
+            // that runs out of it leaves the next its share.
+            let share = until.saturating_duration_since(Instant::now()) / (count - h) as u32;
+            self.stopping_at(stops, world, (Instant::now() + share).min(until), answer)
+        })
     }
 
     /// [`Self::stopping`] at the horizon of `stops`.
@@ -115,10 +122,8 @@ impl TeamPlanner {
             debug!(stop = ?outcome.stop, iterations = outcome.iterations, "no stopping plan");
             return None;
         }
-        let plan = engine.plan(outcome.state.xi);
-        let Ok(plan) = self.within_limits(plan.clone(), &stop) else {
-            let (speed, acceleration) = plan.peak_rates(DENSE_FACTOR * self.team.samples);
-            debug!(speed, acceleration, iterations = outcome.iterations, "the stopping plan is over the limits");
+        let Ok(plan) = self.within_limits(engine.plan(outcome.state.xi), &stop) else {
+            debug!(iterations = outcome.iterations, "the stopping plan is over the limits");
             return None;
         };
         debug!(iterations = outcome.iterations, "a stopping plan");

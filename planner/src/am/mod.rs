@@ -32,6 +32,7 @@
 //! assert_ne!(outcome.stop, Stop::IterationCap);
 //! ```
 
+mod acceleration;
 mod engine;
 mod pairs;
 mod prepare;

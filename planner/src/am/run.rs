@@ -186,7 +186,8 @@ impl Engine {
         let mut iterations = 0;
         let s = &self.settings;
         loop {
-            let primal = projection.run(crew, dim, n, &self.grid, &prepared.constraint, &state.xi);
+            let primal = projection.run(crew, dim, n, &self.grid, &prepared.constraint, &state.xi)
+                + self.acceleration_step(&state.xi, &mut work);
             let verifying = s.verify_every > 0;
             let due = primal <= s.tolerance || iterations % s.verify_every.max(1) == 0 || iterations >= cap;
             // Every update meets the boundary conditions; a given start
@@ -226,7 +227,9 @@ impl Engine {
     /// The primal residual of `xi` (inflated sizes, constrained samples).
     pub fn primal_residual(&self, prepared: &Prepared, xi: &[f64]) -> f64 {
         let (dim, n) = (self.team.dim, self.team.robots);
+        let mut work = self.work();
         Projection::new(dim, n, &self.grid).run(&Crew::alone(), dim, n, &self.grid, &prepared.constraint, xi)
+            + self.acceleration_step(xi, &mut work)
     }
 
     /// Whether `xi` keeps the true sizes and box on the dense grid: no
@@ -247,6 +250,7 @@ impl Engine {
         };
         clear(&mut verifier.start, &self.dense_start, &prepared.verify_start)
             && clear(&mut verifier.dense, &self.dense, &prepared.verify)
+            && self.acceleration.as_ref().is_none_or(|a| a.within(dim.axes(), n, xi))
     }
 }
 

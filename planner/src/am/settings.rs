@@ -142,6 +142,12 @@ pub struct AmSettings {
     /// settings key of its own: the planner settings' `threads` sets it.
     #[serde(skip)]
     pub threads: usize,
+    /// Keep each robot's acceleration within the team's `max_acceleration`
+    /// (where it has one) at every constrained instant, and verify it on
+    /// the dense grid ([`super::acceleration`]); `false`: plans are checked
+    /// against the limit after the fact.
+    #[serde(default)]
+    pub limit_acceleration: bool,
 }
 
 impl AmSettings {
@@ -174,6 +180,7 @@ impl AmSettings {
             veer: true,
             start_refine: 4,
             threads: 0,
+            limit_acceleration: false,
         }
     }
 
@@ -201,6 +208,7 @@ impl AmSettings {
             veer: false,
             start_refine: 1,
             threads: 0,
+            limit_acceleration: false,
         }
     }
 

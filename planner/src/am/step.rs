@@ -51,7 +51,8 @@ impl Stepper<'_> {
         let e = self.engine;
         let (dim, n) = (e.team.dim, e.team.robots);
         let crew = Crew::alone();
-        let primal = self.projection.run(&crew, dim, n, &e.grid, &prepared.constraint, &state.xi);
+        let primal = self.projection.run(&crew, dim, n, &e.grid, &prepared.constraint, &state.xi)
+            + e.acceleration_step(&state.xi, &mut self.work);
         let level = level.min(e.levels.len() - 1);
         let fixed_point = e.update(&crew, prepared, state, level, &self.projection, &mut self.work);
         Residuals { primal, fixed_point }
@@ -68,6 +69,9 @@ pub(super) struct Work {
     mean: Vec<f64>,
     shift: Vec<f64>,
     block_sq: Vec<f64>,
+    /// The acceleration limit's corrections mapped to coefficients,
+    /// `[axis][robot][coef]` (empty without the limit).
+    acceleration: Vec<f64>,
 }
 
 impl Engine {
@@ -79,7 +83,9 @@ impl Engine {
     }
 
     /// The linear pieces of an iteration at penalty level `level` (clamped
-    /// to the schedule).
+    /// to the schedule), of an engine without the acceleration limit
+    /// ([`super::AmSettings::limit_acceleration`]): its rows are not among
+    /// them.
     pub fn step_operators(&self, level: usize) -> StepOperators {
         let lv = &self.levels[level.min(self.levels.len() - 1)];
         StepOperators {
@@ -115,7 +121,16 @@ impl Engine {
             mean: vec![0.0; axes],
             shift: vec![0.0; axes],
             block_sq: vec![0.0; blocks],
+            acceleration: if self.acceleration.is_some() { vec![0.0; len] } else { Vec::new() },
         }
+    }
+
+    /// The acceleration limit's corrections of `xi` into `w` (nothing
+    /// without the limit): their residual, added to the primal one.
+    pub(super) fn acceleration_step(&self, xi: &[f64], w: &mut Work) -> f64 {
+        self.acceleration
+            .as_ref()
+            .map_or(0.0, |limit| limit.correct(self.team.dim.axes(), self.team.robots, xi, &mut w.acceleration))
     }
 
     /// Multiplier update and xi-step from the corrections of `projection`
@@ -153,7 +168,8 @@ impl Engine {
         let target = &prepared.target;
         let xi = &state.xi;
         {
-            let Work { u, rhs, sum, block_sq, .. } = &mut *w;
+            let Work { u, rhs, sum, block_sq, acceleration, .. } = &mut *w;
+            let acceleration = &*acceleration;
             let sum = &*sum;
             let (lambda, u, rhs, block_sq) =
                 (Disjoint::new(&mut state.lambda), Disjoint::new(u), Disjoint::new(rhs), Disjoint::new(block_sq));
@@ -170,6 +186,16 @@ impl Engine {
                         *l += d;
                         lambda_sq += d * d;
                     }
+                    if !acceleration.is_empty() {
+                        // The acceleration rows' corrections, `w D^T c`,
+                        // enter like the positions' (the multiplier here,
+                        // the right-hand side below).
+                        for (l, c) in lambda.iter_mut().zip(&acceleration[rows.clone()]) {
+                            let d = rho * c;
+                            *l += d;
+                            lambda_sq += d * d;
+                        }
+                    }
                     let sum = &sum[ax * nx..(ax + 1) * nx];
                     for (u, x) in u.chunks_exact_mut(nx).zip(xi[rows.clone()].chunks_exact(nx)) {
                         for c in 0..nx {
@@ -183,9 +209,16 @@ impl Engine {
                     if target.is_empty() {
                         moves.for_each(|((r, g), l)| *r = rho * g + l);
                     } else {
-                        moves.zip(&target[rows]).for_each(|(((r, g), l), t)| *r = t + rho * g + l);
+                        moves.zip(&target[rows.clone()]).for_each(|(((r, g), l), t)| *r = t + rho * g + l);
                     }
                     gemm(rhs, u, &lv.rho_gram, robots.len(), nx, nx, Accum::Add);
+                    if !acceleration.is_empty() {
+                        // rho w D^T e = rho w D^T D xi + rho w D^T c.
+                        for (r, c) in rhs.iter_mut().zip(&acceleration[rows.clone()]) {
+                            *r += rho * c;
+                        }
+                        gemm(rhs, &xi[rows], &lv.rho_acceleration, robots.len(), nx, nx, Accum::Add);
+                    }
                 }
                 // SAFETY: as above.
                 unsafe { *block_sq.at(b) = lambda_sq };
