@@ -40,7 +40,9 @@
 //!   117 ms, lost plans unchanged (docs/BENCHMARKS.md, "Threads").
 //! - **Cold plan** otherwise (new goals, robots off the plan, an obstacle
 //!   on it): the cold planner's methods race on their own threads
-//!   ([`crate::cold`]) within the same deadline. One that misses it keeps
+//!   ([`crate::cold`]) within the same deadline; the first verified plan
+//!   within the limits wins (one over them, refused, leaves the others
+//!   running, and the answer says [`Why::Limits`]). One that misses it keeps
 //!   running; its plan is adopted as soon as it verifies if it passes the
 //!   check against the newest world (the robots still at its start), else
 //!   it becomes the sample of the next warm start.
@@ -364,27 +366,31 @@ impl TeamPlanner {
         debug!(by = result.by, verified, ?stop, "cold result");
         let pending = self.pending.as_mut().filter(|p| p.id == result.request.id)?;
         pending.outstanding = pending.outstanding.saturating_sub(1);
+        let last = pending.outstanding == 0;
         let planned = result.outcome.ok();
         if let Some(p) = &planned {
             answer.iterations += p.iterations;
             answer.stages.add(&p.stages);
         }
-        let Some(planned) = planned.filter(Planned::verified) else {
-            if pending.outstanding == 0 {
+        let request = result.request;
+        // The first verified plan within the limits wins the race; one over
+        // them leaves the others running.
+        let Some((planned, plan)) = planned.filter(Planned::verified).and_then(|p| {
+            let plan = self.within_limits(p.plan.clone(), &request.problem);
+            if plan.is_err() {
+                answer.why = Why::Limits;
+            }
+            Some(p).zip(plan.ok())
+        }) else {
+            if last {
                 self.pending = None;
             }
             return None;
         };
-        // The first verified plan wins the race.
         self.cold.cancel();
         self.pending = None;
         answer.candidates = planned.candidates;
         let won = |answer: &Answer| Answer { by: Some(planned.by), ..answer.clone() };
-        let request = result.request;
-        let Ok(plan) = self.within_limits(planned.plan, &request.problem) else {
-            answer.why = Why::Limits;
-            return None;
-        };
         let candidate = Candidate {
             plan,
             problem: request.problem,
@@ -654,6 +660,21 @@ mod tests {
             let (speed, acceleration) = planner.held().unwrap().plan.peak_rates(4 * planner.team().samples);
             assert!(speed <= 0.1 && acceleration <= 0.2, "{speed} {acceleration}");
         }
+    }
+
+    #[test]
+    fn cold_plans_from_motion_over_the_limits_are_refused_for_them() {
+        let mut planner = TeamPlanner::preload(&config(4, "max_speed = 0.2\nmax_acceleration = 0.8\n")).unwrap();
+        let mut problem = RandomScenario::new(planner.team().clone()).generate(3).unwrap();
+        // Robot 0, moving slowly, to the far side of the box: no plan of 5 s
+        // gets there within 0.2 m/s (and none can be stretched from motion).
+        problem.starts[0].velocity.x = 0.03;
+        let far = -problem.starts[0].position.normalize() * 0.85;
+        problem.goals[0] = Vector3::new(far.x, far.y, 0.0);
+        problem.validate().unwrap();
+        let a = answer(&mut planner, &problem, 1_000_000_000, Instant::now());
+        assert_ne!(a.follow, Follow::New, "{a:?}");
+        assert_eq!(a.why, Why::Limits, "{a:?}");
     }
 
     /// Gives `planner` its own racers again (`config`'s), each running

@@ -73,6 +73,10 @@ pub struct Summary {
     /// Fraction of the planned instances (all but the certified
     /// infeasible ones) whose plan passed the success verdict.
     pub success_rate: f64,
+    /// With the team's acceleration limit (`--max-acceleration`): the
+    /// successful plans over it, which a daemon would refuse from motion
+    /// (from rest it stretches them in time).
+    pub over_acceleration: Option<u64>,
     /// Median planning time (ms), planned instances.
     pub median_ms: f64,
     /// 95th-percentile planning time (ms), planned instances.
@@ -185,6 +189,9 @@ pub fn run(args: BenchArgs) -> Result<()> {
         certified_infeasible: certify_ms.len() as u64,
         certify_max_ms: certify_ms.iter().copied().fold(0.0, f64::max),
         success_rate: successes.len() as f64 / records.len().max(1) as f64,
+        over_acceleration: team
+            .max_acceleration
+            .map(|limit| successes.iter().filter(|r| r.max_acceleration > limit * (1.0 + 1e-9)).count() as u64),
         median_ms: quantile(&times, 0.5),
         p95_ms: quantile(&times, 0.95),
         mean_smoothness: mean(&successes.iter().map(|r| r.smoothness).collect::<Vec<_>>()),
@@ -220,6 +227,9 @@ pub fn run(args: BenchArgs) -> Result<()> {
             summary.certified_infeasible,
             summary.certify_max_ms
         );
+        if let (Some(over), Some(limit)) = (summary.over_acceleration, team.max_acceleration) {
+            println!("acceleration     {over} successful plans over the limit of {limit} m/s^2");
+        }
         println!("time             median {:.2} ms, p95 {:.2} ms", summary.median_ms, summary.p95_ms);
         println!("iterations       mean {:.1}, median {}", summary.mean_iterations, summary.median_iterations);
         println!(

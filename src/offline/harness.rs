@@ -31,6 +31,8 @@ pub struct Record {
     pub arc_length: f64,
     /// Smallest robot-robot or robot-obstacle surface gap (m).
     pub min_clearance: f64,
+    /// Largest acceleration of the plan on the dense re-sampling (m/s^2).
+    pub max_acceleration: f64,
     /// Primal residual of the returned plan (m).
     pub primal_residual: f64,
     /// Why the AM stopped.
@@ -268,6 +270,7 @@ impl Record {
             smoothness: metrics.smoothness,
             arc_length: metrics.arc_length,
             min_clearance: metrics.min_clearance(),
+            max_acceleration: metrics.max_acceleration,
             primal_residual: primal,
             stop,
             iterations_to_0_01: first_below(0.01),

@@ -126,6 +126,7 @@ mod tests {
             smoothness: 0.0,
             arc_length: 0.0,
             min_clearance: 0.0,
+            max_acceleration: 0.0,
             primal_residual: 0.0,
             stop: Stop::Verified,
             iterations_to_0_01: None,
