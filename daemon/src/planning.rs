@@ -41,8 +41,9 @@
 //! - **Cold plan** otherwise (new goals, robots off the plan, an obstacle
 //!   on it): the cold planner's methods race on their own threads
 //!   ([`crate::cold`]) within the same deadline; the first verified plan
-//!   within the limits wins (one over them, refused, leaves the others
-//!   running, and the answer says [`Why::Limits`]). One that misses it keeps
+//!   within the limits wins (one over them is refused and leaves the
+//!   others running; when none is left, the answer says [`Why::Limits`]).
+//!   One that misses it keeps
 //!   running; its plan is adopted as soon as it verifies if it passes the
 //!   check against the newest world (the robots still at its start), else
 //!   it becomes the sample of the next warm start.
@@ -410,6 +411,8 @@ impl TeamPlanner {
         match self.refine(&candidate.plan, dt, &world, until, answer) {
             Ok(Some(repaired)) => Some(self.adopt(repaired, won(answer))),
             repair => {
+                // Within the limits, so the answer's reason is no longer theirs.
+                answer.why = Why::NotVerified;
                 let deviation = candidate.plan.deviation(dt, &world.problem.starts);
                 debug!(?followable, dt, deviation, repaired = ?repair.map(|c| c.is_some()), "a verified cold plan not followable, not repaired");
                 self.fresh = Some(candidate);

@@ -76,7 +76,8 @@ impl TeamPlanner {
         // acceleration limit as they are made: repaired without it, most
         // refused ones were over it, and the team was left with no plan
         // (16-robot lab, seeds 0-11: `NoPlan` 49 and contacts in 4 runs
-        // without it, 6 and none with it;
+        // without it, 6 and none with it, one at 0.992 of the separation
+        // on a stopping plan in two more runs;
         // docs/experiments/2026-11-28-acceleration-limit-in-stopping-plans.md).
         let stop_settings = AmSettings {
             verify_margin: 0.0,

@@ -74,8 +74,8 @@ pub struct Summary {
     /// infeasible ones) whose plan passed the success verdict.
     pub success_rate: f64,
     /// With the team's acceleration limit (`--max-acceleration`): the
-    /// successful plans over it, which a daemon would refuse from motion
-    /// (from rest it stretches them in time).
+    /// successful plans over it, which a daemon refuses from motion (from
+    /// rest among static obstacles it stretches them in time).
     pub over_acceleration: Option<u64>,
     /// Median planning time (ms), planned instances.
     pub median_ms: f64,

@@ -227,9 +227,12 @@ impl Engine {
     /// The primal residual of `xi` (inflated sizes, constrained samples).
     pub fn primal_residual(&self, prepared: &Prepared, xi: &[f64]) -> f64 {
         let (dim, n) = (self.team.dim, self.team.robots);
-        let mut work = self.work();
+        let acceleration = self
+            .acceleration
+            .as_ref()
+            .map_or(0.0, |limit| limit.correct(dim.axes(), n, xi, &mut vec![0.0; self.coeff_len()]));
         Projection::new(dim, n, &self.grid).run(&Crew::alone(), dim, n, &self.grid, &prepared.constraint, xi)
-            + self.acceleration_step(xi, &mut work)
+            + acceleration
     }
 
     /// Whether `xi` keeps the true sizes and box on the dense grid: no

@@ -144,8 +144,9 @@ pub struct AmSettings {
     pub threads: usize,
     /// Keep each robot's acceleration within the team's `max_acceleration`
     /// (where it has one) at every constrained instant, and verify it on
-    /// the dense grid ([`super::acceleration`]); `false`: plans are checked
-    /// against the limit after the fact.
+    /// the dense grid after the start ([`super::acceleration`]; a run that
+    /// does not verify, `verify_every` 0, only keeps it to its tolerance);
+    /// `false`: plans are checked against the limit after the fact.
     #[serde(default)]
     pub limit_acceleration: bool,
 }

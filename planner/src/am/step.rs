@@ -84,9 +84,11 @@ impl Engine {
 
     /// The linear pieces of an iteration at penalty level `level` (clamped
     /// to the schedule), of an engine without the acceleration limit
-    /// ([`super::AmSettings::limit_acceleration`]): its rows are not among
-    /// them.
+    /// ([`super::AmSettings::limit_acceleration`]) only: with it, `K11`
+    /// (and the prepared boundary part) include `rho w D^T D` while the
+    /// limit's multiplier and right-hand-side terms are not among these.
     pub fn step_operators(&self, level: usize) -> StepOperators {
+        debug_assert!(self.acceleration.is_none(), "the unrolled iteration has no acceleration rows");
         let lv = &self.levels[level.min(self.levels.len() - 1)];
         StepOperators {
             rho: lv.rho,
@@ -181,19 +183,22 @@ impl Engine {
                     // SAFETY: each block's rows belong to one part.
                     let (lambda, u, rhs) =
                         unsafe { (lambda.range(rows.clone()), u.range(rows.clone()), rhs.range(rows.clone())) };
-                    for (l, g) in lambda.iter_mut().zip(&g[rows.clone()]) {
-                        let d = rho * g;
-                        *l += d;
-                        lambda_sq += d * d;
-                    }
-                    if !acceleration.is_empty() {
+                    if acceleration.is_empty() {
+                        for (l, g) in lambda.iter_mut().zip(&g[rows.clone()]) {
+                            let d = rho * g;
+                            *l += d;
+                            lambda_sq += d * d;
+                        }
+                    } else {
                         // The acceleration rows' corrections, `w D^T c`,
                         // enter like the positions' (the multiplier here,
                         // the right-hand side below).
-                        for (l, c) in lambda.iter_mut().zip(&acceleration[rows.clone()]) {
-                            let d = rho * c;
+                        let moves = g[rows.clone()].iter().zip(&acceleration[rows.clone()]);
+                        for (l, (g, c)) in lambda.iter_mut().zip(moves) {
+                            let (d, e) = (rho * g, rho * c);
                             *l += d;
-                            lambda_sq += d * d;
+                            *l += e;
+                            lambda_sq += (d + e) * (d + e);
                         }
                     }
                     let sum = &sum[ax * nx..(ax + 1) * nx];
