@@ -157,7 +157,7 @@ impl Basis {
 }
 
 /// `M^T M` over rows `from..` of a row-major matrix with `cols` columns.
-fn gram_of(m: &[f64], cols: usize, from: usize) -> Vec<f64> {
+pub(crate) fn gram_of(m: &[f64], cols: usize, from: usize) -> Vec<f64> {
     let mut g = vec![0.0; cols * cols];
     for row in m.chunks_exact(cols).skip(from) {
         for (i, &ri) in row.iter().enumerate() {

@@ -18,14 +18,14 @@
 //! lab run most stopping plans the daemon refused were over the limit
 //! (3.6 to 40 m/s^2 against 3), and the team was left with no plan.
 
-use crate::basis::bernstein_row;
-use crate::linalg::{Accum, dot, gemm};
+use crate::basis::{bernstein_row, gram_of};
+use crate::linalg::dot;
 use crate::problem::Team;
 
 /// The limit is imposed at the constrained instants at this fraction of
 /// `max_acceleration`, so that the dense verification at the limit itself
 /// passes between them.
-pub(crate) const MARGIN: f64 = 0.97;
+const MARGIN: f64 = 0.97;
 
 /// Weight `w` of the acceleration rows against the position rows. Stopping
 /// plans of 16 random robots starting at 1.2 m/s over 1 s (200 seeds of
@@ -34,7 +34,7 @@ pub(crate) const MARGIN: f64 = 0.97;
 /// 30 / 100 / 300 / 1,000 / 10,000, 46 / 48 / 50 / 50 / 50 / 48 / 45, in
 /// 254 / 184 / 165 / 162 / 169 / 184 / 230 iterations on average (without
 /// it 21); at 0.9 of the limit instead of [`MARGIN`], 47 at 1 and 46 at 100.
-pub(crate) const WEIGHT: f64 = 100.0;
+const WEIGHT: f64 = 100.0;
 
 /// The acceleration rows of one engine: `D` at its constrained instants
 /// and at the dense verification's, and the limit in those units.
@@ -76,12 +76,7 @@ impl AccelerationLimit {
     /// `w D^T D` (`n_xi x n_xi`, row-major): what joins the cost Hessian
     /// per unit of penalty.
     pub(crate) fn gram(&self) -> Vec<f64> {
-        let nx = self.n_xi;
-        let count = self.d.len() / nx;
-        let mut dt = vec![0.0; nx * count];
-        transpose(&self.d, count, nx, &mut dt);
-        let mut g = vec![0.0; nx * nx];
-        gemm(&mut g, &dt, &self.d, nx, count, nx, Accum::Replace);
+        let mut g = gram_of(&self.d, self.n_xi, 0);
         g.iter_mut().for_each(|v| *v *= WEIGHT);
         g
     }
@@ -132,15 +127,6 @@ impl AccelerationLimit {
                 sq <= limit_sq
             })
         })
-    }
-}
-
-/// `out = m^T` for `m` of `rows x cols`, row-major.
-fn transpose(m: &[f64], rows: usize, cols: usize, out: &mut [f64]) {
-    for r in 0..rows {
-        for c in 0..cols {
-            out[c * rows + r] = m[r * cols + c];
-        }
     }
 }
 
