@@ -52,6 +52,7 @@ impl TeamPlanner {
         answer.iterations += outcome.iterations;
         answer.candidates = 1;
         if outcome.stop != Stop::Verified {
+            debug!(stop = ?outcome.stop, iterations = outcome.iterations, primal = outcome.primal, "a repair not verified");
             return Ok(None);
         }
         let plan = self.within_limits(engine.plan(outcome.state.xi), &start)?;
