@@ -188,8 +188,9 @@ mod tests {
         // 0, 0.5 and 1.0 within the prediction, and 1.5 past its end; a
         // static obstacle at every instant.
         assert_eq!(limits.until, [4, 6]);
-        let short = Team { obstacle_prediction: Some(2.4), ..problem.team.clone() };
-        let limits = Limits::at_times(&Problem { team: short, ..problem }, &times, 1.0, [0.0; 3]);
+        // A prediction past the grid's last instant: no instant beyond it.
+        let longer = Team { obstacle_prediction: Some(3.0), ..problem.team.clone() };
+        let limits = Limits::at_times(&Problem { team: longer, ..problem }, &times, 1.0, [0.0; 3]);
         assert_eq!(limits.until, [6, 6], "no instant past the grid");
     }
 }
