@@ -60,15 +60,18 @@ impl Stepper<'_> {
 }
 
 /// Buffers of the xi-step: `[axis][robot][coef]` (`u`, `rhs`, `next`),
-/// `[axis][coef]` (`sum`, `mean`, `shift`), per robot block (`block_sq`).
+/// `[axis][coef]` (`sum`, `shared`, `mean`, `shift`), per robot block
+/// (`block_sq`; `block_sums`: `[block][xi, rhs][axis][coef]`).
 pub(super) struct Work {
     u: Vec<f64>,
     rhs: Vec<f64>,
     next: Vec<f64>,
     sum: Vec<f64>,
+    shared: Vec<f64>,
     mean: Vec<f64>,
     shift: Vec<f64>,
     block_sq: Vec<f64>,
+    block_sums: Vec<f64>,
     /// The acceleration limit's corrections mapped to coefficients,
     /// `[axis][robot][coef]` (empty without the limit).
     acceleration: Vec<f64>,
@@ -120,9 +123,11 @@ impl Engine {
             rhs: vec![0.0; len],
             next: vec![0.0; len],
             sum: vec![0.0; axes],
+            shared: vec![0.0; axes],
             mean: vec![0.0; axes],
             shift: vec![0.0; axes],
             block_sq: vec![0.0; blocks],
+            block_sums: vec![0.0; blocks * 2 * axes],
             acceleration: if self.acceleration.is_some() { vec![0.0; len] } else { Vec::new() },
         }
     }
@@ -138,6 +143,13 @@ impl Engine {
     /// Multiplier update and xi-step from the corrections of `projection`
     /// on `crew`, per robot block (the same numbers for every crew size);
     /// returns the fixed-point residual.
+    ///
+    /// The sums over the team (of `xi`, for the structured `F^T F + G^T G`,
+    /// and of the right-hand sides, for their mean) are taken per robot
+    /// block inside the parallel steps and added block after block in
+    /// between, so that nothing runs over the whole team on one thread:
+    /// `r_i = a_i - (sum_j xi_j) rho P^T P` with `a_i` the right-hand side
+    /// of `u_i = modes xi_i` alone.
     pub(super) fn update(
         &self,
         crew: &Crew<'_>,
@@ -153,31 +165,31 @@ impl Engine {
         let lv = &self.levels[level];
         let rho = lv.rho;
         let nb = n.div_ceil(ROBOT_BLOCK);
-        // u_i = (n + m + w) xi_i - sum_j xi_j (the structured F^T F + G^T G).
         let modes = n as f64 + self.obstacles as f64 + WORKSPACE_WEIGHT;
-        w.sum.fill(0.0);
-        for (ax, sum) in w.sum.chunks_exact_mut(nx).enumerate() {
-            for row in state.xi[ax * n * nx..(ax + 1) * n * nx].chunks_exact(nx) {
-                for (m, v) in sum.iter_mut().zip(row) {
-                    *m += v;
-                }
-            }
-        }
+        let width = dim * nx;
         // g = P^T (e - F xi): the corrections mapped back to coefficients;
         // lambda <- lambda - rho F^T r1 - rho G^T r2 = lambda + rho g;
-        // rhs = c_lin + rho g + lambda + rho P^T P u.
+        // a_i = c_lin + rho g + lambda + rho P^T P modes xi_i, and per block
+        // the sums of xi_i and a_i.
         let g = projection.mapped();
         let target = &prepared.target;
         let xi = &state.xi;
         {
-            let Work { u, rhs, sum, block_sq, acceleration, .. } = &mut *w;
+            let Work { u, rhs, block_sq, block_sums, acceleration, .. } = &mut *w;
             let acceleration = &*acceleration;
-            let sum = &*sum;
-            let (lambda, u, rhs, block_sq) =
-                (Disjoint::new(&mut state.lambda), Disjoint::new(u), Disjoint::new(rhs), Disjoint::new(block_sq));
+            let (lambda, u, rhs, block_sq, block_sums) = (
+                Disjoint::new(&mut state.lambda),
+                Disjoint::new(u),
+                Disjoint::new(rhs),
+                Disjoint::new(block_sq),
+                Disjoint::new(block_sums),
+            );
             crew.each(nb, &|_, b| {
                 let robots = block_robots(b, n);
                 let mut lambda_sq = 0.0;
+                // SAFETY: each block's sums belong to one part.
+                let sums = unsafe { block_sums.range(b * 2 * width..(b + 1) * 2 * width) };
+                let (xi_sums, rhs_sums) = sums.split_at_mut(width);
                 for ax in 0..dim {
                     let rows = (ax * n + robots.start) * nx..(ax * n + robots.end) * nx;
                     // SAFETY: each block's rows belong to one part.
@@ -201,10 +213,12 @@ impl Engine {
                             lambda_sq += (d + e) * (d + e);
                         }
                     }
-                    let sum = &sum[ax * nx..(ax + 1) * nx];
+                    let xi_sum = &mut xi_sums[ax * nx..(ax + 1) * nx];
+                    xi_sum.fill(0.0);
                     for (u, x) in u.chunks_exact_mut(nx).zip(xi[rows.clone()].chunks_exact(nx)) {
                         for c in 0..nx {
-                            u[c] = modes * x[c] - sum[c];
+                            u[c] = modes * x[c];
+                            xi_sum[c] += x[c];
                         }
                     }
                     // Two loops rather than a bounds check per element:
@@ -224,44 +238,70 @@ impl Engine {
                         }
                         gemm(rhs, &xi[rows], &lv.rho_acceleration, robots.len(), nx, nx, Accum::Add);
                     }
+                    let rhs_sum = &mut rhs_sums[ax * nx..(ax + 1) * nx];
+                    rhs_sum.fill(0.0);
+                    for row in rhs.chunks_exact(nx) {
+                        for (s, v) in rhs_sum.iter_mut().zip(row) {
+                            *s += v;
+                        }
+                    }
                 }
                 // SAFETY: as above.
                 unsafe { *block_sq.at(b) = lambda_sq };
             });
         }
         let lambda_sq: f64 = w.block_sq.iter().sum();
-        // xi_i = K11_diff rhs_i + (K11_mean - K11_diff) rhs_mean + beta_i (K11 symmetric).
+        // The team's sums, block after block: `s = sum_j xi_j`, then the
+        // shared term `s rho P^T P` (in `sum`) and the right-hand sides'
+        // mean `mean_j a_j - s rho P^T P` (in `mean`).
+        w.sum.fill(0.0);
         w.mean.fill(0.0);
-        for (ax, mean) in w.mean.chunks_exact_mut(nx).enumerate() {
-            for row in w.rhs[ax * n * nx..(ax + 1) * n * nx].chunks_exact(nx) {
-                for (m, v) in mean.iter_mut().zip(row) {
-                    *m += v / n as f64;
-                }
+        for sums in w.block_sums[..nb * 2 * width].chunks_exact(2 * width) {
+            let (xi_sums, rhs_sums) = sums.split_at(width);
+            for (s, v) in w.sum.iter_mut().zip(xi_sums) {
+                *s += v;
+            }
+            for (m, v) in w.mean.iter_mut().zip(rhs_sums) {
+                *m += v;
             }
         }
+        for ax in 0..dim {
+            let axis = ax * nx..(ax + 1) * nx;
+            gemm(&mut w.shared[axis.clone()], &w.sum[axis.clone()], &lv.rho_gram, 1, nx, nx, Accum::Replace);
+            for (m, s) in w.mean[axis.clone()].iter_mut().zip(&w.shared[axis.clone()]) {
+                *m = *m / n as f64 - s;
+            }
+        }
+        // xi_i = K11_diff r_i + (K11_mean - K11_diff) r_mean + beta_i (K11 symmetric).
         for (shift, mean) in w.shift.chunks_exact_mut(nx).zip(w.mean.chunks_exact(nx)) {
             for (s, row) in shift.iter_mut().zip(lv.mean_minus_diff.chunks_exact(nx)) {
                 *s = dot(row, mean);
             }
         }
         {
-            let Work { rhs, next, shift, block_sq, .. } = &mut *w;
-            let (rhs, shift, beta) = (&*rhs, &*shift, &prepared.beta[level]);
-            let (next, block_sq) = (Disjoint::new(next), Disjoint::new(block_sq));
+            let Work { rhs, next, shift, shared, block_sq, .. } = &mut *w;
+            let (shift, shared, beta) = (&*shift, &*shared, &prepared.beta[level]);
+            let (rhs, next, block_sq) = (Disjoint::new(rhs), Disjoint::new(next), Disjoint::new(block_sq));
             crew.each(nb, &|_, b| {
                 let robots = block_robots(b, n);
                 let mut xi_sq = 0.0;
                 for ax in 0..dim {
                     let rows = (ax * n + robots.start) * nx..(ax * n + robots.end) * nx;
                     // SAFETY: each block's rows belong to one part.
-                    let next = unsafe { next.range(rows.clone()) };
+                    let (rhs, next) = unsafe { (rhs.range(rows.clone()), next.range(rows.clone())) };
+                    let (shift, shared) = (&shift[ax * nx..(ax + 1) * nx], &shared[ax * nx..(ax + 1) * nx]);
+                    for row in rhs.chunks_exact_mut(nx) {
+                        for (r, s) in row.iter_mut().zip(shared) {
+                            *r -= s;
+                        }
+                    }
                     next.copy_from_slice(&beta[rows.clone()]);
                     for row in next.chunks_exact_mut(nx) {
-                        for (x, s) in row.iter_mut().zip(&shift[ax * nx..(ax + 1) * nx]) {
+                        for (x, s) in row.iter_mut().zip(shift) {
                             *x += s;
                         }
                     }
-                    gemm(next, &rhs[rows.clone()], lv.kkt.diff().k11(), robots.len(), nx, nx, Accum::Add);
+                    gemm(next, rhs, lv.kkt.diff().k11(), robots.len(), nx, nx, Accum::Add);
                     xi_sq += xi[rows].iter().zip(&*next).map(|(a, b)| (a - b) * (a - b)).sum::<f64>();
                 }
                 // SAFETY: as above.

@@ -165,32 +165,36 @@ impl Check<'_> {
         }
     }
 
-    /// The corrections of `pair`, if it violates at any of its instants,
+    /// The corrections of every violating pair of `pairs` (in order),
     /// appended instant by instant (`+c` for `i`, `-c` for `j`) to the
     /// list of the part that adds `i`'s corrections and, where another
-    /// part adds `j`'s, to that part's too (`adder`: a robot's part).
+    /// part adds `j`'s, to that part's too (`adder`: a robot's part). One
+    /// call per chunk of candidates: the screen of the pairs that do not
+    /// violate (most of them) runs in this loop, not in a call per pair.
     pub(super) fn hits<const D: usize>(
         &self,
-        pair: Candidate,
+        pairs: &[Candidate],
         scratch: &mut Scratch,
         lists: &mut [Vec<Hit>],
         adder: &impl Fn(usize) -> usize,
     ) {
-        if !self.violates::<D>(pair, scratch) {
-            return;
-        }
-        let (i, j) = (pair.i as usize, pair.j as usize);
-        let (to_i, to_j) = (adder(i), adder(j));
-        let (pi, pj) =
-            (robot_rows::<D>(self.pos, self.n, self.count, i), robot_rows::<D>(self.pos, self.n, self.count, j));
-        for k in self.instants(pair) {
-            if let Some(c) = push::<D>(&pi, &pj, k, &self.inv, &self.limits.robot_sep, scratch.target[k], (i, j)) {
-                let mut c3 = [0.0; 3];
-                c3[..D].copy_from_slice(&c);
-                let hit = Hit { i: pair.i, j: pair.j, k: k as u32, c: c3 };
-                lists[to_i].push(hit);
-                if to_j != to_i {
-                    lists[to_j].push(hit);
+        for &pair in pairs {
+            if !self.violates::<D>(pair, scratch) {
+                continue;
+            }
+            let (i, j) = (pair.i as usize, pair.j as usize);
+            let (to_i, to_j) = (adder(i), adder(j));
+            let (pi, pj) =
+                (robot_rows::<D>(self.pos, self.n, self.count, i), robot_rows::<D>(self.pos, self.n, self.count, j));
+            for k in self.instants(pair) {
+                if let Some(c) = push::<D>(&pi, &pj, k, &self.inv, &self.limits.robot_sep, scratch.target[k], (i, j)) {
+                    let mut c3 = [0.0; 3];
+                    c3[..D].copy_from_slice(&c);
+                    let hit = Hit { i: pair.i, j: pair.j, k: k as u32, c: c3 };
+                    lists[to_i].push(hit);
+                    if to_j != to_i {
+                        lists[to_j].push(hit);
+                    }
                 }
             }
         }

@@ -171,14 +171,11 @@ impl Projection {
                 for (range, list) in ranges.iter_mut().zip(lists.iter()) {
                     range[0] = list.len() as u32;
                 }
-                for &pair in pairs {
-                    if !first {
-                        check.hits::<D>(pair, scratch, lists, &adder);
-                    } else if check.violates::<D>(pair, scratch) {
-                        *mine = Some(pair);
-                        found.store(true, Ordering::Relaxed);
-                        break;
-                    }
+                if !first {
+                    check.hits::<D>(pairs, scratch, lists, &adder);
+                } else if let Some(&pair) = pairs.iter().find(|&&pair| check.violates::<D>(pair, scratch)) {
+                    *mine = Some(pair);
+                    found.store(true, Ordering::Relaxed);
                 }
                 for (range, list) in ranges.iter_mut().zip(lists.iter()) {
                     range[1] = list.len() as u32;
@@ -221,7 +218,7 @@ impl Projection {
                     crew.size(),
                     n,
                     count,
-                    block_robots(mine.start, n).start..block_robots(mine.end, n).start,
+                    (mine.start * ROBOT_BLOCK).min(n)..(mine.end * ROBOT_BLOCK).min(n),
                     &corr,
                     &touched,
                     &sums,
@@ -376,12 +373,21 @@ fn add_hits<const D: usize>(
     touched: &Disjoint<'_, bool>,
     sums: &Disjoint<'_, BlockSums>,
 ) {
+    if robots.is_empty() {
+        return;
+    }
     let stride = n * count;
+    // SAFETY: the caller owns these robots' rows, marks and blocks.
+    let rows: [&mut [f64]; D] = std::array::from_fn(|a| unsafe {
+        corr.range(a * stride + robots.start * count..a * stride + robots.end * count)
+    });
+    let touched = unsafe { touched.range(robots.clone()) };
+    let first_block = robots.start / ROBOT_BLOCK;
+    let sums = unsafe { sums.range(first_block..(robots.end - 1) / ROBOT_BLOCK + 1) };
     let mut pending: Option<(usize, f64)> = None;
-    let flush = |pending: &mut Option<(usize, f64)>| {
+    let mut flush = |pending: &mut Option<(usize, f64)>| {
         if let Some((i, sum)) = pending.take() {
-            // SAFETY: robot `i` is the caller's.
-            unsafe { sums.at(i / ROBOT_BLOCK).pair_sq += sum };
+            sums[i / ROBOT_BLOCK - first_block].pair_sq += sum;
         }
     };
     let mut last = (u32::MAX, u32::MAX);
@@ -393,21 +399,20 @@ fn add_hits<const D: usize>(
                 last = (hit.i, hit.j);
             }
             let (i, j, k) = (hit.i as usize, hit.j as usize, hit.k as usize);
-            // SAFETY: only the caller's robots are written.
-            unsafe {
-                if robots.contains(&i) {
-                    *touched.at(i) = true;
-                    let sum = &mut pending.get_or_insert((i, 0.0)).1;
-                    for a in 0..D {
-                        *corr.at(a * stride + i * count + k) += hit.c[a];
-                        *sum += hit.c[a] * hit.c[a];
-                    }
+            if robots.contains(&i) {
+                let r = i - robots.start;
+                touched[r] = true;
+                let sum = &mut pending.get_or_insert((i, 0.0)).1;
+                for a in 0..D {
+                    rows[a][r * count + k] += hit.c[a];
+                    *sum += hit.c[a] * hit.c[a];
                 }
-                if robots.contains(&j) {
-                    *touched.at(j) = true;
-                    for a in 0..D {
-                        *corr.at(a * stride + j * count + k) -= hit.c[a];
-                    }
+            }
+            if robots.contains(&j) {
+                let r = j - robots.start;
+                touched[r] = true;
+                for a in 0..D {
+                    rows[a][r * count + k] -= hit.c[a];
                 }
             }
         }
