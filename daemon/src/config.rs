@@ -209,7 +209,7 @@ fn default_max_obstacle_speed() -> f64 {
     3.0
 }
 fn default_follow_tolerance_m() -> f64 {
-    0.005
+    0.010
 }
 fn default_warm_tolerance_m() -> f64 {
     0.05
@@ -446,7 +446,7 @@ mod tests {
         assert_eq!((t.horizon, t.degree, t.samples, t.max_obstacles), (5.0, 10, 50, 0));
         assert_eq!((t.deadline_ms, t.replan_hz, t.stale_after_ms), (20.0, 0.0, 500.0));
         assert_eq!((t.max_speed, t.max_acceleration, t.implausible_factor), (1.5, 3.0, 2.0));
-        assert_eq!((t.clock_skew_ms, t.follow_tolerance_m, t.warm_tolerance_m), (50.0, 0.005, 0.05));
+        assert_eq!((t.clock_skew_ms, t.follow_tolerance_m, t.warm_tolerance_m), (50.0, 0.010, 0.05));
         assert_eq!((t.max_obstacle_speed, t.obstacle_prediction_s), (3.0, 3.5));
         assert_eq!(t.planner, PlannerSettings::default());
         assert_eq!(t.team().unwrap().obstacle_prediction, Some(3.5));

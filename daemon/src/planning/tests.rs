@@ -38,7 +38,7 @@ fn answer(planner: &mut TeamPlanner, problem: &Problem, origin_ns: u64, received
 /// (within the follow tolerance: a plan made while the robots followed
 /// the one before starts on that one) and keeps the true sizes on the
 /// dense grid, and, from starts apart, the tracking buffer too: robots
-/// grown by the follow tolerance (default 5 mm) do not touch.
+/// grown by the follow tolerance (default 10 mm) do not touch.
 fn assert_verified_from(planner: &TeamPlanner, problem: &Problem) {
     let held = planner.held().expect("a held plan");
     let starts: Vec<StartState> = held.plan.at(0.0).iter().map(|k| StartState::at_rest(k.position)).collect();
@@ -286,7 +286,7 @@ fn a_plan_made_while_the_robots_follow_the_held_one_starts_on_it() {
     // `a_late_cold_plan_is_adopted_when_the_robots_are_still_at_its_start`).
     hold_racers(&mut planner, &config, || wait_for(&ANCHOR_GATE));
     // New goals (back to the starts), measured 3 mm to one side of the
-    // plan: within the follow tolerance (5 mm).
+    // plan: within the follow tolerance (10 mm).
     let shifted = |problem: &Problem, dx: f64| {
         let mut p = problem.clone();
         p.starts.iter_mut().for_each(|s| s.position.x += dx);
@@ -323,7 +323,7 @@ fn a_robot_knocked_off_the_plan_is_replanned_from_its_measurement_and_the_rest_f
     let problem = RandomScenario::new(team).generate(5).unwrap();
     let mut knocked = on_the_plan_after(&mut planner, &problem, 0.4);
     let held = planner.held().unwrap().plan.clone();
-    // Every robot measured 3 mm to one side of the plan (within the 5 mm
+    // Every robot measured 3 mm to one side of the plan (within the 10 mm
     // follow tolerance) but robot 0, knocked 30 mm off it at 0.3 m/s
     // (within the 50 mm warm tolerance): the plan may not be followed.
     knocked.starts.iter_mut().for_each(|s| s.position.x += 0.003);
