@@ -64,10 +64,10 @@ def test_a_recording_holds_the_run_and_its_plans(flowopt_bin, config, prefix, tm
     assert len(errors) >= 0.5 * report["statuses"].get("Ok", 0)
     errors.sort()
     # Ok plans start where the robots were measured: within the follow
-    # tolerance (5 mm; a plan made while the robots follow the held one
+    # tolerance (10 mm; a plan made while the robots follow the held one
     # starts on that one), a late plan adopted while the team was still
     # near its start within the warm tolerance.
-    assert errors[len(errors) // 2] < 0.005 + 1e-9 and errors[-1] < 0.05, errors[-5:]
+    assert errors[len(errors) // 2] < 0.010 + 1e-9 and errors[-1] < 0.05, errors[-5:]
 
 
 def test_an_existing_recording_is_never_overwritten(flowopt_bin, config, prefix, tmp_path):

@@ -119,9 +119,9 @@ def test_a_cyclone_mocap_gets_plans_from_its_poses_to_its_goals(flowopt_bin, con
     for i, path in enumerate(got):
         assert path is not None, f"robot {i}: no plan"
         first, last = path.poses[0].pose.position, path.poses[-1].pose.position
-        # Within the follow tolerance (5 mm): a plan made while the robots
+        # Within the follow tolerance (10 mm): a plan made while the robots
         # count as following the held one starts on that one.
-        assert (first.x, first.y) == pytest.approx(starts[i], abs=5e-3 + 1e-9), f"robot {i} starts where mocap saw it"
+        assert (first.x, first.y) == pytest.approx(starts[i], abs=10e-3 + 1e-9), f"robot {i} starts where mocap saw it"
         assert (last.x, last.y) == pytest.approx(ends[i], abs=1e-3), f"robot {i} ends at its goal"
 
 

@@ -251,9 +251,9 @@ impl Engine {
             });
         }
         let lambda_sq: f64 = w.block_sq.iter().sum();
-        // The team's sums, block after block: `s = sum_j xi_j`, then the
-        // shared term `s rho P^T P` (in `sum`) and the right-hand sides'
-        // mean `mean_j a_j - s rho P^T P` (in `mean`).
+        // The team's sums, block after block: `s = sum_j xi_j` (in `sum`),
+        // then the shared term `s rho P^T P` (in `shared`) and the
+        // right-hand sides' mean `mean_j a_j - s rho P^T P` (in `mean`).
         w.sum.fill(0.0);
         w.mean.fill(0.0);
         for sums in w.block_sums[..nb * 2 * width].chunks_exact(2 * width) {

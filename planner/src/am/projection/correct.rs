@@ -381,8 +381,10 @@ fn add_hits<const D: usize>(
     let rows: [&mut [f64]; D] = std::array::from_fn(|a| unsafe {
         corr.range(a * stride + robots.start * count..a * stride + robots.end * count)
     });
+    // SAFETY: as above.
     let touched = unsafe { touched.range(robots.clone()) };
     let first_block = robots.start / ROBOT_BLOCK;
+    // SAFETY: as above.
     let sums = unsafe { sums.range(first_block..(robots.end - 1) / ROBOT_BLOCK + 1) };
     let mut pending: Option<(usize, f64)> = None;
     let mut flush = |pending: &mut Option<(usize, f64)>| {
