@@ -212,17 +212,7 @@ impl Projection {
             // robots belong to one part.
             let mine = share(part, crew.size(), blocks);
             if crew.size() > 1 && !first {
-                add_hits::<D>(
-                    routed,
-                    part,
-                    crew.size(),
-                    n,
-                    count,
-                    (mine.start * ROBOT_BLOCK).min(n)..(mine.end * ROBOT_BLOCK).min(n),
-                    &corr,
-                    &touched,
-                    &sums,
-                );
+                add_hits::<D>(routed, part, crew.size(), n, count, mine.clone(), &corr, &touched, &sums);
             }
             let scratch = unsafe { &mut parts.at(part).scratch };
             for b in mine {
@@ -356,11 +346,11 @@ fn clamp_row(row: &mut [f64], p: &[f64], lo: f64, hi: f64) -> (f64, bool) {
     (sq, any)
 }
 
-/// Adds the hits `routed` to part `part` of `parts` on robots `robots`
-/// to their corrections, chunk by chunk in candidate order: `+c` to `i`,
+/// Adds the hits `routed` to part `part` of `parts` on the robots of its
+/// robot blocks `blocks` to their corrections, chunk by chunk in candidate order: `+c` to `i`,
 /// `-c` to `j`, each pair's `||c||^2` to the sums of `i`'s block (as
-/// [`super::check::Check::push`] adds them). The caller owns those robots'
-/// rows, marks and blocks.
+/// [`super::check::Check::push`] adds them). The caller owns those blocks'
+/// rows, marks and sums.
 #[allow(clippy::too_many_arguments, reason = "the step's shared buffers")]
 fn add_hits<const D: usize>(
     routed: &Routed,
@@ -368,24 +358,22 @@ fn add_hits<const D: usize>(
     parts: usize,
     n: usize,
     count: usize,
-    robots: std::ops::Range<usize>,
+    blocks: std::ops::Range<usize>,
     corr: &Disjoint<'_, f64>,
     touched: &Disjoint<'_, bool>,
     sums: &Disjoint<'_, BlockSums>,
 ) {
-    if robots.is_empty() {
+    if blocks.is_empty() {
         return;
     }
-    let stride = n * count;
-    // SAFETY: the caller owns these robots' rows, marks and blocks.
-    let rows: [&mut [f64]; D] = std::array::from_fn(|a| unsafe {
-        corr.range(a * stride + robots.start * count..a * stride + robots.end * count)
-    });
+    let robots = blocks.start * ROBOT_BLOCK..block_robots(blocks.end - 1, n).end;
+    let first_block = blocks.start;
+    // SAFETY: the caller owns these blocks' rows, marks and sums.
+    let rows: [&mut [f64]; D] = std::array::from_fn(|a| unsafe { corr.range(block_rows(a, n, &robots, count)) });
     // SAFETY: as above.
     let touched = unsafe { touched.range(robots.clone()) };
-    let first_block = robots.start / ROBOT_BLOCK;
     // SAFETY: as above.
-    let sums = unsafe { sums.range(first_block..(robots.end - 1) / ROBOT_BLOCK + 1) };
+    let sums = unsafe { sums.range(blocks) };
     let mut pending: Option<(usize, f64)> = None;
     let mut flush = |pending: &mut Option<(usize, f64)>| {
         if let Some((i, sum)) = pending.take() {
