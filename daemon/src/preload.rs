@@ -65,7 +65,14 @@ impl TeamPlanner {
         // same plans on any count), so that spinning members never outnumber
         // the cores the controllers also need.
         let (threads, cold_threads) = split_threads(settings.threads());
-        let settings = PlannerSettings { threads: cold_threads, ..settings };
+        // A cold plan from motion over the acceleration limit is refused
+        // and the next snapshot's request starts from where the robots
+        // are then; planning the stale request again within the limit
+        // held the optimiser's lane for up to its iteration cap (16-robot
+        // lab, seeds 0-3: a walker contact at 1.000 of the separation in
+        // one run, main none;
+        // docs/experiments/2026-11-28-plans-from-motion-within-the-limit.md).
+        let settings = PlannerSettings { threads: cold_threads, retry_within_limits: false, ..settings };
         let filter_settings =
             buffered(AmSettings { max_iterations: WARM_ITERATIONS, threads, ..AmSettings::safety_filter() }, buffer);
         let filters = EngineSet::preloaded(&team, Objective::Projection, filter_settings, max)?;

@@ -18,10 +18,6 @@ use crate::held::{Candidate, World};
 use crate::planning::TeamPlanner;
 use crate::stops::Stops;
 
-/// Start speed (m/s) below which a robot counts as at rest, so that a plan
-/// may be stretched in time without changing its start.
-const AT_REST: f64 = 0.02;
-
 impl TeamPlanner {
     /// The safety filter on `sample` shifted by `dt` for `world`: a
     /// verified candidate within the limits, `None` if it did not verify,
@@ -61,18 +57,15 @@ impl TeamPlanner {
     }
 
     /// `plan` if it keeps the team's speed and acceleration limits; else
-    /// stretched in time when the robots start at rest and every obstacle is
-    /// static (the paths, and so the verified clearances, are unchanged);
-    /// else [`Why::Limits`].
+    /// stretched in time where the problem allows it
+    /// ([`Problem::stretchable`]); else [`Why::Limits`].
     pub(crate) fn within_limits(&self, plan: JointPlan, problem: &Problem) -> Result<JointPlan, Why> {
         let (speed, acceleration) = plan.peak_rates(DENSE_FACTOR * self.team.samples);
         let factor = (speed / self.rules.max_speed).max((acceleration / self.rules.max_acceleration).sqrt());
         if factor <= 1.0 {
             return Ok(plan);
         }
-        let at_rest = problem.starts.iter().all(|s| s.velocity.norm() <= AT_REST && s.acceleration.norm() <= AT_REST);
-        let static_obstacles = problem.obstacles.iter().all(|o| o.velocity.norm() == 0.0);
-        if at_rest && static_obstacles && factor.is_finite() {
+        if problem.stretchable() && factor.is_finite() {
             Ok(plan.stretched(factor * (1.0 + 1e-6)))
         } else {
             debug!(speed, acceleration, "a plan over the limits");

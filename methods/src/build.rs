@@ -8,7 +8,10 @@
 //!   where `learned.init` names one) and the optimiser race, where the
 //!   team has at most `race_max_robots` robots and the weights plan in its
 //!   dimension and basis; else the optimiser alone, and [`members`] says
-//!   why. Teams too small for the optimiser's crew
+//!   why. Where the team has an acceleration limit, the optimiser makes
+//!   a verified plan from motion that is over it again within it
+//!   ([`WithinLimits`], unless `retry_within_limits` is off, as in the
+//!   daemon). Teams too small for the optimiser's crew
 //!   ([`flowopt_planner::am::CREW_MIN_ROBOTS`]) leave cores idle: there
 //!   [`VARIANTS`] race beside them, one per core the settings' `threads`
 //!   leaves after the learned pipeline and the optimiser;
@@ -26,6 +29,7 @@ use crate::filter_bench::PerturbedFilter;
 use crate::method::Method;
 use crate::race::Race;
 use crate::settings::PlannerSettings;
+use crate::within_limits::WithinLimits;
 
 /// The learned pipeline as `method` runs it with `settings`, for teams of
 /// `dim` (the shipped weights are picked by the dimension).
@@ -102,6 +106,14 @@ pub fn members(settings: &PlannerSettings, team: &Team) -> Result<Members, PlanE
             } else {
                 learned_for(settings, method, team)?
             };
+            // With an acceleration limit, the optimiser makes a plan from
+            // motion over it again within it.
+            let optimiser = || match team.max_acceleration {
+                Some(_) if settings.retry_within_limits => {
+                    Box::new(WithinLimits::new(settings.optimiser())) as Box<dyn Planner>
+                }
+                _ => optimiser(),
+            };
             let (mut racers, why): Members = match learned {
                 Ok(pipeline) => (vec![Box::new(pipeline), optimiser()], None),
                 Err(why) => (vec![optimiser()], Some(why)),
@@ -172,6 +184,10 @@ mod tests {
         };
         assert_eq!(names(&Team::default_for(Dim::Two, 16)), (vec!["learned", "optimiser"], None));
         assert_eq!(names(&Team::default_for(Dim::Three, 16)).0, vec!["learned", "optimiser"]);
+        // A team with an acceleration limit: the same two (the optimiser
+        // goes on within the limit in its own lane).
+        let limited = Team { max_acceleration: Some(3.0), ..Team::default_for(Dim::Two, 16) };
+        assert_eq!(names(&limited).0, vec!["learned", "optimiser"]);
         let (big, why) = names(&Team::default_for(Dim::Two, 64));
         assert_eq!(big, vec!["optimiser"]);
         assert!(why.unwrap().contains("up to 32 robots"));

@@ -36,9 +36,11 @@ mod filter_bench;
 mod method;
 mod race;
 pub mod settings;
+mod within_limits;
 
 pub use filter_bench::PerturbedFilter;
 pub use flowopt_planner::method::{PlanError, Planned, Planner, Stages};
 pub use method::Method;
 pub use race::{Race, RaceResult, Request};
 pub use settings::{PlannerSettings, SettingsError};
+pub use within_limits::WithinLimits;

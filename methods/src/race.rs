@@ -1,14 +1,17 @@
 //! The portfolio race (OMPL's `ParallelPlan`): every member plans every
 //! request on a thread of its own that lives as long as the race; the
-//! first verified plan wins and the others are cancelled.
+//! first verified plan within the team's limits
+//! ([`Planned::within_limits`]) wins and the others are cancelled.
 //!
 //! The daemon uses it anytime: [`Race::submit`] returns at once, results
 //! arrive on [`Race::results`] (or [`Race::wait_until`]) in the order the
 //! members finish, and a request that misses its snapshot's deadline keeps
 //! running until it verifies, fails, is cancelled or its budget runs out.
 //! The command line calls it as a [`Planner`]: [`Race::plan`] waits for the
-//! first verified plan (or every member's failure) and returns it with the
-//! time to it; the losers are stopped before it returns.
+//! first verified plan within the limits (or every member's end) and
+//! returns it with the time to it; the losers are stopped before it
+//! returns. (The daemon applies the limits itself, stretching plans from
+//! rest.)
 
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, OnceLock};
@@ -208,9 +211,10 @@ impl Planner for Race {
         Ok(())
     }
 
-    /// The first verified plan, or, if none verifies, the optimiser's plan
-    /// (else the first member's); the others are cancelled and stopped
-    /// before it returns. The caller's deadline and cancellation apply.
+    /// The first verified plan within the limits, or, if none is, the
+    /// first verified plan, else the optimiser's plan (else the first
+    /// member's); the others are cancelled and stopped before it returns.
+    /// The caller's deadline and cancellation apply.
     fn plan(&mut self, problem: &Problem, budget: &Budget<'_>, seed: u64) -> Result<Planned, PlanError> {
         let started = Instant::now();
         let id = self.submit_until(problem, seed, 0, 0, budget.deadline);
@@ -229,7 +233,7 @@ impl Planner for Race {
             }
             outstanding -= 1;
             match result.outcome {
-                Ok(mut planned) if planned.verified() && winner.is_none() => {
+                Ok(mut planned) if planned.verified() && planned.within_limits(problem) && winner.is_none() => {
                     self.cancel();
                     planned.wall = started.elapsed();
                     winner = Some(planned);
@@ -240,8 +244,13 @@ impl Planner for Race {
         if let Some(planned) = winner {
             return Ok(planned);
         }
+        // None within the limits: a verified plan over them (a daemon
+        // refuses it, a benchmark counts it), else the optimiser's last
+        // iterate, else any.
+        let verified = others.iter().position(|o| o.as_ref().is_ok_and(Planned::verified));
         let position = |by: &str| others.iter().position(|o| o.as_ref().is_ok_and(|p| p.by == by));
-        let pick = position("optimiser").or_else(|| others.iter().position(Result::is_ok)).unwrap_or(0);
+        let pick =
+            verified.or_else(|| position("optimiser")).or_else(|| others.iter().position(Result::is_ok)).unwrap_or(0);
         if others.is_empty() {
             return Err(PlanError::Failed("the race has no members".into()));
         }
@@ -332,6 +341,9 @@ mod tests {
         cancelled: Arc<AtomicU64>,
         /// It ignores its budget (a planner between two checks).
         stubborn: bool,
+        /// Its coefficients alternate by a metre (accelerations far over
+        /// any limit) instead of all being the seed.
+        rough: bool,
     }
 
     impl Planner for Fake {
@@ -355,8 +367,9 @@ mod tests {
                 std::thread::sleep(Duration::from_micros(200));
             }
             let n = problem.team.dim.axes() * problem.team.robots * (problem.team.degree + 1);
+            let coefficient = |k: usize| if self.rough { (k % 2) as f64 } else { seed as f64 };
             Ok(Planned {
-                plan: JointPlan::new(&problem.team, vec![seed as f64; n]),
+                plan: JointPlan::new(&problem.team, (0..n).map(coefficient).collect()),
                 stop,
                 primal: 0.0,
                 iterations: 1,
@@ -377,11 +390,39 @@ mod tests {
             verifies,
             cancelled: Arc::clone(cancelled),
             stubborn: false,
+            rough: false,
         })
     }
 
     fn problem() -> Problem {
         RandomScenario::new(Team::default_for(Dim::Two, 2)).generate(1).unwrap()
+    }
+
+    #[test]
+    fn a_verified_plan_from_motion_over_the_limit_loses_to_one_within_it() {
+        let cancelled = Arc::new(AtomicU64::new(0));
+        let rough = Box::new(Fake {
+            name: "rough",
+            delay: Duration::from_millis(1),
+            verifies: true,
+            cancelled: Arc::clone(&cancelled),
+            stubborn: false,
+            rough: true,
+        });
+        let members: Vec<Box<dyn Planner>> = vec![rough, fake("smooth", 50, true, &cancelled)];
+        let mut race = Race::start("test", members, None, || {});
+        let mut moving = problem();
+        moving.team.max_acceleration = Some(3.0);
+        moving.starts[0].velocity.x = 0.5;
+        let planned = race.plan(&moving, &Budget::unlimited(), 7).unwrap();
+        assert_eq!(planned.by, "smooth", "the first verified plan is over the limit");
+        // From rest it would be stretched in time: the first one wins.
+        let mut rest = moving.clone();
+        rest.starts[0].velocity.x = 0.0;
+        assert_eq!(race.plan(&rest, &Budget::unlimited(), 7).unwrap().by, "rough");
+        // Without a limit, too.
+        moving.team.max_acceleration = None;
+        assert_eq!(race.plan(&moving, &Budget::unlimited(), 7).unwrap().by, "rough");
     }
 
     #[test]
@@ -403,6 +444,7 @@ mod tests {
             verifies: true,
             cancelled: Arc::clone(&cancelled),
             stubborn: true,
+            rough: false,
         };
         let mut race = Race::start("test", vec![fake("fast", 1, true, &cancelled), Box::new(busy)], None, || {});
         // The busy member is still on an earlier request when the next one

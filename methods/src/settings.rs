@@ -63,6 +63,12 @@ pub struct PlannerSettings {
     pub learned: PipelineSettings,
     /// The largest team `auto` races the learned pipeline for.
     pub race_max_robots: usize,
+    /// `auto`'s optimiser, for a team with an acceleration limit, plans
+    /// again with the limit as a constraint where its verified plan from
+    /// motion is over it ([`crate::WithinLimits`]). The daemon turns it
+    /// off (`flowopt_daemon`'s preload: a second run holds the cold lane
+    /// from a start that is stale by then).
+    pub retry_within_limits: bool,
     /// Threads the optimiser iterates on, the calling one among them (teams
     /// of [`flowopt_planner::am::CREW_MIN_ROBOTS`] robots or more, one per
     /// block of 16 robots at most; the same plans for every count); 0: the
@@ -79,6 +85,7 @@ impl Default for PlannerSettings {
             filter: AmSettings::safety_filter(),
             learned: PipelineSettings::default(),
             race_max_robots: RACE_MAX_ROBOTS,
+            retry_within_limits: true,
             threads: 0,
         }
     }

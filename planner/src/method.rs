@@ -12,6 +12,7 @@ use std::time::Duration;
 use thiserror::Error;
 
 use crate::am::{AmState, Budget, EngineError, Prepared, Stop};
+use crate::basis::DENSE_FACTOR;
 use crate::plan::JointPlan;
 use crate::problem::{Problem, Team};
 
@@ -87,6 +88,18 @@ impl Planned {
     /// Whether the plan passed the dense verification.
     pub fn verified(&self) -> bool {
         self.stop == Stop::Verified
+    }
+
+    /// Whether the plan keeps `problem`'s acceleration limit
+    /// ([`Team::max_acceleration`]) on the dense re-sampling, or can be
+    /// stretched in time to ([`Problem::stretchable`]); true without a
+    /// limit. A race takes the first verified plan that does.
+    pub fn within_limits(&self, problem: &Problem) -> bool {
+        let Some(limit) = problem.team.max_acceleration else { return true };
+        problem.stretchable() || {
+            let (_, acceleration) = self.plan.peak_rates(DENSE_FACTOR * problem.team.samples);
+            acceleration <= limit * (1.0 + 1e-9)
+        }
     }
 }
 

@@ -84,7 +84,7 @@ impl Planner for Optimiser {
             candidates: 1,
             stages: Stages { optimise: started.elapsed(), ..Stages::default() },
             wall: started.elapsed(),
-            by: "optimiser",
+            by: self.name,
             start: None,
         })
     }

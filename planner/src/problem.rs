@@ -26,7 +26,6 @@ use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 
 use crate::basis::{BOUNDARY_ROWS, Basis, BasisError, DENSE_FACTOR};
-use crate::braking::least_excursion;
 use crate::closing;
 pub use crate::problem_error::{Field, ProblemError};
 pub use crate::start_violation::{Against, BrakingExcess, RECOVERABLE_DEPTH, StartViolation};
@@ -36,6 +35,10 @@ pub use crate::start_violation::{Against, BrakingExcess, RECOVERABLE_DEPTH, Star
 /// separation) on a dense re-sampling, and robot centres stay within
 /// `FEASIBILITY_TOLERANCE * separation` of the workspace box.
 pub const FEASIBILITY_TOLERANCE: f64 = 0.01;
+
+/// Start speed (m/s) and acceleration (m/s^2) at or below which a robot
+/// counts as at rest ([`Problem::stretchable`]).
+pub const AT_REST: f64 = 0.02;
 
 /// Workspace dimension.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
@@ -375,6 +378,17 @@ impl Problem {
         self.team.robots
     }
 
+    /// Whether a plan for this problem can be stretched in time to bring
+    /// its speed and acceleration within limits without changing what was
+    /// verified: every robot starts at rest ([`AT_REST`]) and every
+    /// obstacle is static (the paths, and so the clearances, stay as they
+    /// were). A plan from motion, or among moving obstacles, over the
+    /// team's acceleration limit cannot be followed.
+    pub fn stretchable(&self) -> bool {
+        self.starts.iter().all(|s| s.velocity.norm() <= AT_REST && s.acceleration.norm() <= AT_REST)
+            && self.obstacles.iter().all(|o| o.velocity.norm() == 0.0)
+    }
+
     /// The values of the boundary rows ([`crate::basis::Basis::boundary_rows`])
     /// per axis and robot, `[axis][robot][6]`: start position, velocity and
     /// acceleration, goal, and rest, in normalised time.
@@ -395,50 +409,6 @@ impl Problem {
             ]);
         }
         b
-    }
-
-    /// How far robot `i`, from its start, must go at the least towards the
-    /// `upper` (or lower) side on `axis` under any plan within
-    /// `max_acceleration` ([`crate::braking`]; 0 moving away from it).
-    pub fn least_excursion(&self, i: usize, axis: usize, upper: bool, max_acceleration: f64) -> f64 {
-        let (t, s) = (&self.team, &self.starts[i]);
-        let sign = if upper { 1.0 } else { -1.0 };
-        let (speed, towards) = (sign * s.velocity[axis], sign * s.acceleration[axis]);
-        least_excursion(t.degree, t.samples, t.horizon, max_acceleration, towards, speed)
-    }
-
-    /// With [`Team::max_acceleration`], each robot and axis along which the
-    /// robot, within [`FEASIBILITY_TOLERANCE`] of the box on that axis,
-    /// moves towards a side it cannot stop before: how far past the side
-    /// its least excursion takes it ([`Self::least_excursion`]). Beyond
-    /// the tolerance that is a start violation ([`Against::Braking`]); within
-    /// it, a floor the plan keeps to ([`crate::recovery`]).
-    pub fn braking_excesses(&self) -> impl Iterator<Item = BrakingExcess> + '_ {
-        let team = &self.team;
-        let slack = team.box_tolerance();
-        let axes = team.dim.axes();
-        team.max_acceleration.into_iter().flat_map(move |max_acceleration| {
-            (0..self.starts.len() * axes).filter_map(move |k| {
-                let (robot, axis) = (k / axes, k % axes);
-                let (p, v) = (self.starts[robot].position[axis], self.starts[robot].velocity[axis]);
-                let (lo, hi) = (team.workspace.min[axis], team.workspace.max[axis]);
-                // Outside on this axis it is `Against::Box`.
-                if v == 0.0 || p < lo - slack || p > hi + slack {
-                    return None;
-                }
-                let (upper, room) = if v > 0.0 { (true, hi - p) } else { (false, p - lo) };
-                let least = self.least_excursion(robot, axis, upper, max_acceleration);
-                let excess = least - room;
-                (excess > 0.0).then_some(BrakingExcess {
-                    robot,
-                    axis,
-                    upper,
-                    least,
-                    excess,
-                    tolerated: excess <= slack,
-                })
-            })
-        })
     }
 
     /// Every constraint the starts violate beyond [`FEASIBILITY_TOLERANCE`]:

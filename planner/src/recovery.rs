@@ -315,8 +315,11 @@ mod tests {
             v.iter().map(|v| (v.robot, v.against)).collect::<Vec<_>>(),
             [(1, Against::Braking { axis: 0, upper: true })]
         );
-        let least = crate::braking::least_excursion(10, 50, 5.0, 3.0, 0.0, 1.0);
-        assert!(least > 1.0 / 6.0);
+        // Its least excursion: the table's, and with its goal (behind it)
+        // more.
+        let table = crate::braking::least_excursion(10, 50, 5.0, 3.0, 0.0, 1.0);
+        let least = problem.least_excursion(1, 0, true, 3.0);
+        assert!(table > 1.0 / 6.0 && least > table, "{table} {least}");
         assert!((v[0].floor - (0.95 + 1.1 * least)).abs() < 1e-12, "its stop with the slack: {}", v[0].floor);
         let strict = Problem { team: Team { start_recovery: None, ..problem.team.clone() }, ..problem.clone() };
         match strict.validate() {
@@ -347,17 +350,23 @@ mod tests {
     #[test]
     fn a_robot_that_must_brake_past_its_side_within_the_tolerance_is_planned_there() {
         // Robot 1 at 0.3 m/s outwards, placed so that its least excursion
-        // ends 1 mm past the right side: within the 2 mm tolerance, so not
-        // a violation, but no plan keeps it in the box.
-        let least = crate::braking::least_excursion(10, 50, 5.0, 3.0, 0.0, 0.3);
-        let x0 = 1.0 - least + 0.001;
-        let problem = four(|p| {
-            p.team = Team { start_recovery: None, max_acceleration: Some(3.0), ..p.team.clone() };
-            p.starts[1] = StartState {
-                velocity: Vector3::new(0.3, 0.0, 0.0),
-                ..StartState::at_rest(Vector3::new(x0, -0.5, 0.0))
-            };
-        });
+        // (with its goal) ends 1 mm past the right side: within the 2 mm
+        // tolerance, so not a violation, but no plan keeps it in the box.
+        let at = |x0: f64| {
+            four(|p| {
+                p.team = Team { start_recovery: None, max_acceleration: Some(3.0), ..p.team.clone() };
+                p.starts[1] = StartState {
+                    velocity: Vector3::new(0.3, 0.0, 0.0),
+                    ..StartState::at_rest(Vector3::new(x0, -0.5, 0.0))
+                };
+            })
+        };
+        let mut x0 = 1.0 - crate::braking::least_excursion(10, 50, 5.0, 3.0, 0.0, 0.3) + 0.001;
+        for _ in 0..20 {
+            x0 -= at(x0).least_excursion(1, 0, true, 3.0) - (1.0 - x0) - 0.001;
+        }
+        let problem = at(x0);
+        let least = problem.least_excursion(1, 0, true, 3.0);
         assert_eq!(problem.validate(), Ok(()));
         let excess: Vec<_> = problem.braking_excesses().collect();
         assert_eq!(excess.len(), 1);

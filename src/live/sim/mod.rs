@@ -252,6 +252,9 @@ fn simulate(args: &SimArgs, config: &DaemonConfig, team_config: &TeamConfig) -> 
             flowopt_planner::braking::prepare(team.degree, team.samples, horizon, a);
         }
     }
+    // The check holds plans to the daemon's bounds: the table alone, no
+    // program per start (`braking::past_side_with_goal`) inside it.
+    flowopt_planner::braking::solve_in_background(|| {});
     // The contract's check of a followable answer: moving obstacles over
     // the daemon's shorter check window.
     let checked = Team { obstacle_prediction: Some(team_config.obstacle_check_s()), ..team.clone() };

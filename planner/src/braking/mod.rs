@@ -2,7 +2,9 @@
 //! turn back, at the least, under any plan it can follow: the certificate
 //! behind [`crate::problem::Against::Braking`].
 //!
-//! Two lower bounds, the larger taken:
+//! Two lower bounds, the larger taken, and, for a start near a side, a
+//! third with the robot's goal ([`least_past_side`], in `to_goal.rs`;
+//! [`crate::problem::Problem::least_excursion`] takes the largest):
 //!
 //! - the physical one, `v^2 / 2a`: constant braking at the largest
 //!   acceleration `a`, for any trajectory and any start acceleration;
@@ -51,6 +53,27 @@ use crossbeam::channel::{Sender, unbounded};
 use microlp::{ComparisonOp, OptimizationDirection, Problem as Lp};
 
 use crate::basis::{BOUNDARY_ROWS, DENSE_FACTOR, bernstein_row};
+
+mod excess;
+mod to_goal;
+
+pub use to_goal::{AxisStart, Form, least_past_side};
+
+/// Starts whose table bound ([`least_excursion`]) leaves them more room
+/// than this (m) to the side are not checked with their goal
+/// ([`past_side_with_goal`]).
+pub const GOAL_CHECK_NEAR: f64 = 0.05;
+
+/// [`least_past_side`] where this process solves a program per start:
+/// not in one that solves the table in the background
+/// ([`solve_in_background`]: the daemon, whose answers never wait for a
+/// program; it keeps the table's bound).
+pub fn past_side_with_goal(form: Form, start: AxisStart) -> Option<f64> {
+    if BACKGROUND.get().is_some() {
+        return None;
+    }
+    least_past_side(form, start)
+}
 
 /// Spacing of the speeds the plan's bound is solved at (m/s).
 pub const SPEED_STEP: f64 = 0.02;

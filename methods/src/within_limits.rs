@@ -1,0 +1,112 @@
+//! The optimiser for a team with an acceleration limit: without the limit
+//! first, and, where its verified plan is over the limit and cannot be
+//! stretched in time ([`Problem::stretchable`]: robots in motion, or
+//! moving obstacles), again with the limit as a constraint
+//! ([`AmSettings::limit_acceleration`]) in the budget left.
+//!
+//! A plan from motion over the limit cannot be followed (a daemon refuses
+//! it). Without the limit the optimiser is fast, but 7-40% of its
+//! verified plans from motion at 0.3-1.0 m/s come out over it; with the
+//! limit it verified, on the same 300 instances, every one the optimiser
+//! without it verified within the limit, and more, at 2.2-3.4 times its
+//! median (docs/BENCHMARKS.md, "Cold plans from motion"). Raced as a
+//! third member beside the learned pipeline and the optimiser instead,
+//! on two cores it took a core from the daemon's worker: the 16-robot lab
+//! had 28-30 `DeadlineMissed` answers in two runs of four (main 2-12) and
+//! p99 7-10 ms (2-3 ms). Here it takes the optimiser's own lane, and only
+//! after a plan that cannot be used. The daemon still turns it off
+//! ([`crate::PlannerSettings::retry_within_limits`]): its next snapshot's
+//! request starts from where the robots are then, and the second run of a
+//! stale one held the lane for up to the iteration cap (docs/experiments/2026-11-28-plans-from-motion-within-the-limit.md).
+
+use flowopt_planner::am::{AmSettings, Budget};
+use flowopt_planner::method::{PlanError, Planned, Planner};
+use flowopt_planner::optimiser::Optimiser;
+use flowopt_planner::problem::{Problem, Team};
+
+/// The second run's name in reports (a plan it made is `by` it).
+pub const NAME: &str = "optimiser-within-limits";
+
+/// The optimiser, then the optimiser within the acceleration limit.
+pub struct WithinLimits {
+    optimiser: Optimiser,
+    limited: Optimiser,
+}
+
+impl WithinLimits {
+    /// The optimiser of `settings`, and the same with the acceleration
+    /// limit imposed.
+    pub fn new(settings: AmSettings) -> Self {
+        let limited = AmSettings { limit_acceleration: true, ..settings };
+        Self { optimiser: Optimiser::new(settings), limited: Optimiser::new(limited).named(NAME) }
+    }
+}
+
+impl Planner for WithinLimits {
+    fn name(&self) -> &'static str {
+        self.optimiser.name()
+    }
+
+    fn plan(&mut self, problem: &Problem, budget: &Budget<'_>, seed: u64) -> Result<Planned, PlanError> {
+        let first = self.optimiser.plan(problem, budget, seed)?;
+        if !first.verified() || first.within_limits(problem) || budget.spent().is_some() {
+            return Ok(first);
+        }
+        let second = self.limited.plan(problem, budget, seed)?;
+        let spent = |p: &Planned| (first.iterations + p.iterations, first.wall + p.wall);
+        let (iterations, wall) = spent(&second);
+        let mut planned = if second.verified() { second } else { first.clone() };
+        planned.iterations = iterations;
+        planned.wall = wall;
+        planned.stages.optimise = wall;
+        Ok(planned)
+    }
+
+    fn ready(&mut self, team: &Team, obstacles: usize) -> Result<(), PlanError> {
+        self.optimiser.ready(team, obstacles)?;
+        match team.max_acceleration {
+            Some(_) => self.limited.ready(team, obstacles),
+            None => Ok(()),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use flowopt_planner::metrics::Metrics;
+    use flowopt_planner::problem::Dim;
+    use flowopt_planner::scenario::RandomScenario;
+
+    /// Four robots, the first moving at `speed` along x.
+    fn moving(speed: f64, limit: Option<f64>) -> Problem {
+        let team = Team { max_acceleration: limit, ..Team::default_for(Dim::Two, 4) };
+        let mut problem = RandomScenario::new(team).generate(3).unwrap();
+        problem.starts[0].velocity.x = speed;
+        problem
+    }
+
+    #[test]
+    fn a_plan_from_motion_over_the_limit_is_made_again_within_it() {
+        let mut planner = WithinLimits::new(AmSettings::optimiser());
+        let budget = Budget::unlimited();
+        // From motion, a limit the optimiser without it breaks.
+        let problem = moving(0.5, Some(0.5));
+        assert!(!problem.stretchable());
+        let over = Optimiser::new(AmSettings::optimiser()).plan(&problem, &budget, 0).unwrap();
+        assert!(over.verified() && !over.within_limits(&problem), "the limit binds");
+        let planned = planner.plan(&problem, &budget, 0).unwrap();
+        assert!(planned.verified() && planned.within_limits(&problem));
+        assert_eq!(planned.by, NAME);
+        assert!(planned.iterations > over.iterations, "both runs counted");
+        let metrics = Metrics::measure(&problem, &planned.plan);
+        assert!(metrics.max_acceleration <= 0.5 + 1e-9, "{}", metrics.max_acceleration);
+        // From rest the same plan is stretched in time instead: the first
+        // run's plan, over the limit or not.
+        let rest = moving(0.0, Some(0.5));
+        assert!(rest.stretchable());
+        let planned = planner.plan(&rest, &budget, 0).unwrap();
+        assert_eq!((planned.by, planned.verified()), ("optimiser", true));
+        assert!(planned.within_limits(&rest));
+    }
+}
