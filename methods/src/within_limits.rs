@@ -53,9 +53,9 @@ impl Planner for WithinLimits {
             return Ok(first);
         }
         let second = self.limited.plan(problem, budget, seed)?;
-        let spent = |p: &Planned| (first.iterations + p.iterations, first.wall + p.wall);
-        let (iterations, wall) = spent(&second);
-        let mut planned = if second.verified() { second } else { first.clone() };
+        // Both runs' iterations and time, on the plan kept.
+        let (iterations, wall) = (first.iterations + second.iterations, first.wall + second.wall);
+        let mut planned = if second.verified() { second } else { first };
         planned.iterations = iterations;
         planned.wall = wall;
         planned.stages.optimise = wall;
