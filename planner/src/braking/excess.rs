@@ -18,8 +18,7 @@ impl Problem {
         let sign = if upper { 1.0 } else { -1.0 };
         let (speed, towards) = (sign * s.velocity[axis], sign * s.acceleration[axis]);
         let table = least_excursion(t.degree, t.samples, t.horizon, max_acceleration, towards, speed);
-        let side = if upper { t.workspace.max[axis] } else { t.workspace.min[axis] };
-        let room = sign * (side - s.position[axis]);
+        let (side, room) = self.side_and_room(i, axis, upper);
         if speed <= 0.0 || table - room <= -GOAL_CHECK_NEAR {
             return table;
         }
@@ -54,7 +53,8 @@ impl Problem {
                 if v == 0.0 || p < lo - slack || p > hi + slack {
                     return None;
                 }
-                let (upper, room) = if v > 0.0 { (true, hi - p) } else { (false, p - lo) };
+                let upper = v > 0.0;
+                let (_, room) = self.side_and_room(robot, axis, upper);
                 let least = self.least_excursion(robot, axis, upper, max_acceleration);
                 let excess = least - room;
                 (excess > 0.0).then_some(BrakingExcess {
@@ -67,5 +67,12 @@ impl Problem {
                 })
             })
         })
+    }
+
+    /// The `upper` (or lower) side of the box on `axis`, and how far robot
+    /// `i`'s start is from it (m; negative outside).
+    fn side_and_room(&self, i: usize, axis: usize, upper: bool) -> (f64, f64) {
+        let (w, p) = (&self.team.workspace, self.starts[i].position[axis]);
+        if upper { (w.max[axis], w.max[axis] - p) } else { (w.min[axis], p - w.min[axis]) }
     }
 }
