@@ -419,60 +419,65 @@ impl Problem {
     /// swerve, [`crate::closing`]), then obstacles. Allocates only
     /// when there is one.
     pub fn start_violations(&self) -> Vec<StartViolation> {
+        self.each_start_violation().collect()
+    }
+
+    /// [`Self::start_violations`] one at a time, each found when asked for
+    /// (a validation stops at the first: the pairs' programs,
+    /// [`Self::unavoidable_pair`], are not solved after a box
+    /// violation).
+    fn each_start_violation(&self) -> impl Iterator<Item = StartViolation> + '_ {
         let team = &self.team;
         let (a, b) = team.separation();
-        let mut out = Vec::new();
         let slack = team.box_tolerance();
-        for (i, s) in
-            self.starts.iter().enumerate().filter(|(_, s)| !team.workspace.contains(team.dim, &s.position, slack))
-        {
-            for axis in 0..team.dim.axes() {
-                let (lo, hi, p, v) =
-                    (team.workspace.min[axis], team.workspace.max[axis], s.position[axis], s.velocity[axis]);
-                if p < lo - slack || p > hi + slack {
-                    let upper = p > hi;
-                    let (depth, closing) = if upper { (p - hi, v) } else { (lo - p, -v) };
-                    let against = Against::Box { axis, upper };
-                    out.push(StartViolation { robot: i, against, depth: depth / a, closing: closing.max(0.0) });
-                }
-            }
-        }
-        for e in self.braking_excesses().filter(|e| !e.tolerated) {
+        let n = self.starts.len();
+        let boxes = self
+            .starts
+            .iter()
+            .enumerate()
+            .filter(move |(_, s)| !team.workspace.contains(team.dim, &s.position, slack))
+            .flat_map(move |(i, s)| {
+                (0..team.dim.axes()).filter_map(move |axis| {
+                    let (lo, hi, p, v) =
+                        (team.workspace.min[axis], team.workspace.max[axis], s.position[axis], s.velocity[axis]);
+                    (p < lo - slack || p > hi + slack).then(|| {
+                        let upper = p > hi;
+                        let (depth, closing) = if upper { (p - hi, v) } else { (lo - p, -v) };
+                        let against = Against::Box { axis, upper };
+                        StartViolation { robot: i, against, depth: depth / a, closing: closing.max(0.0) }
+                    })
+                })
+            });
+        let braking = self.braking_excesses().filter(|e| !e.tolerated).map(move |e| {
             let against = Against::Braking { axis: e.axis, upper: e.upper };
             let closing = self.starts[e.robot].velocity[e.axis].abs();
-            out.push(StartViolation { robot: e.robot, against, depth: e.excess / a, closing });
-        }
+            StartViolation { robot: e.robot, against, depth: e.excess / a, closing }
+        });
         // The verification's instants, from its first dense one on.
         let window = (team.horizon / (DENSE_FACTOR * team.samples - 1) as f64, team.horizon);
-        for (i, si) in self.starts.iter().enumerate() {
-            for (j, sj) in self.starts.iter().enumerate().skip(i + 1) {
+        let pairs = (0..n).flat_map(move |i| {
+            (i + 1..n).filter_map(move |j| {
+                let (si, sj) = (&self.starts[i], &self.starts[j]);
                 let (d, w) = (si.position - sj.position, si.velocity - sj.velocity);
                 if let Some((depth, closing)) = overlap(team.dim, d, w, a, b) {
-                    out.push(StartViolation { robot: i, against: Against::Robot(j), depth, closing });
-                } else if let Some((most, at)) =
-                    team.max_acceleration.filter(|_| team.start_recovery.is_none()).and_then(|m| {
-                        // The ball of reachable offsets, scaled: its radius
-                        // by the larger of the two scales (a sphere holds it).
-                        let spread = m * if team.dim == Dim::Three { (1.0 / a).max(1.0 / b) } else { 1.0 / a };
-                        let (q, r) = (scaled(team.dim, &d, a, b), scaled(team.dim, &w, a, b));
-                        closing::unavoidable(q, r, spread, window, 1.0 - FEASIBILITY_TOLERANCE)
-                    })
-                {
-                    out.push(StartViolation { robot: i, against: Against::Closing(j), depth: 1.0 - most, closing: at });
+                    return Some(StartViolation { robot: i, against: Against::Robot(j), depth, closing });
                 }
-            }
-        }
-        for (m, o) in self.obstacles.iter().enumerate() {
+                let touching = 1.0 - FEASIBILITY_TOLERANCE;
+                let (most, at) = team
+                    .max_acceleration
+                    .filter(|_| team.start_recovery.is_none())
+                    .and_then(|m| self.unavoidable_pair((i, j), m, window, touching))?;
+                Some(StartViolation { robot: i, against: Against::Closing(j), depth: 1.0 - most, closing: at })
+            })
+        });
+        let obstacles = self.obstacles.iter().enumerate().flat_map(move |(m, o)| {
             let (ao, bo) = team.obstacle_separation(&o.shape);
-            for (i, s) in self.starts.iter().enumerate() {
-                if let Some((depth, closing)) =
-                    overlap(team.dim, s.position - o.position, s.velocity - o.velocity, ao, bo)
-                {
-                    out.push(StartViolation { robot: i, against: Against::Obstacle(m), depth, closing });
-                }
-            }
-        }
-        out
+            self.starts.iter().enumerate().filter_map(move |(i, s)| {
+                let (depth, closing) = overlap(team.dim, s.position - o.position, s.velocity - o.velocity, ao, bo)?;
+                Some(StartViolation { robot: i, against: Against::Obstacle(m), depth, closing })
+            })
+        });
+        boxes.chain(braking).chain(pairs).chain(obstacles)
     }
 
     /// Checks every input: counts, finiteness, sizes, overlaps and the
@@ -507,7 +512,7 @@ impl Problem {
                 positive(o.shape.half_height, Field::ObstacleSize, m)?;
             }
         }
-        if let Some(v) = self.start_violations().iter().find(|v| team.start_recovery.is_none() || !v.recoverable()) {
+        if let Some(v) = self.each_start_violation().find(|v| team.start_recovery.is_none() || !v.recoverable()) {
             return Err(v.error(team.separation().0));
         }
         for (i, g) in self.goals.iter().enumerate() {

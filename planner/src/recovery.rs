@@ -33,7 +33,17 @@
 //!   excursion of where it is, never further out than the tolerance; without
 //!   start recovery, for the whole plan. Without this, such a start (a robot
 //!   measured at a side with some speed towards it) ran to the iteration
-//!   cap: the optimiser and its verification held the exact box.
+//!   cap: the optimiser and its verification held the exact box;
+//! - likewise, a robot whose least excursion stops it less than
+//!   [`crate::braking::GOAL_CHECK_NEAR`] inside a side keeps within the
+//!   side, or, where that leaves it under [`RECOVERY_SLACK`] of the
+//!   excursion, within `1 + RECOVERY_SLACK` times it, never further out
+//!   than the tolerance.
+//!
+//! Each floor of a side carries its slack ([`Violation::slack`]), the room
+//! between it and the least excursion: the optimiser's projection keeps
+//! its box inset from a floor only up to that, since inside it no plan the
+//! robot can follow exists.
 //!
 //! Every other constraint holds in full from the first instant. The
 //! optimiser's projection, its dense verification ([`crate::am::Limits`])
@@ -80,6 +90,11 @@ pub struct Violation {
     /// pair or an obstacle, the coordinate the robot stays within for a
     /// side of the box.
     pub floor: f64,
+    /// How far inside its floor a robot may still be held (m): for a side
+    /// of the box, from the floor back to the least excursion of a plan it
+    /// can follow ([`crate::braking`]); infinite for a pair or an obstacle.
+    /// A limit tighter than the floor by more leaves no plan.
+    pub slack: f64,
 }
 
 /// Every start violation of a problem and how long its floors hold.
@@ -106,13 +121,17 @@ impl Recovery {
         let team = &problem.team;
         let slack = team.box_tolerance();
         // Starts that cannot stop before a side but past it by no more than
-        // the tolerance: not violations, but no plan keeps them in the box.
+        // the tolerance (not violations, but no plan keeps them in the box),
+        // and starts that stop just inside it.
         let tolerated = problem.braking_excesses().filter(|e| e.tolerated).map(|e| {
-            // Its least excursion with the slack, never past the tolerance.
-            let out = ((1.0 + RECOVERY_SLACK) * e.least).min(e.least - e.excess + slack);
+            // Past the side: its least excursion with the slack, never past
+            // the tolerance. Inside: the side itself.
+            let room = e.least - e.excess;
+            let out = room.max(((1.0 + RECOVERY_SLACK) * e.least).min(room + slack));
             let p = problem.starts[e.robot].position[e.axis];
             let floor = if e.upper { p + out } else { p - out };
-            Violation { robot: e.robot, against: Against::Braking { axis: e.axis, upper: e.upper }, floor }
+            let against = Against::Braking { axis: e.axis, upper: e.upper };
+            Violation { robot: e.robot, against, floor, slack: out - e.least }
         });
         let mut tolerated = tolerated.peekable();
         // Without start recovery those floors hold for the whole plan.
@@ -125,7 +144,7 @@ impl Recovery {
         let violations = measured
             .into_iter()
             .map(|v| {
-                let floor = match v.against {
+                let (floor, slack) = match v.against {
                     Against::Box { axis, upper } | Against::Braking { axis, upper } => {
                         // At least the least excursion of a plan it can
                         // follow (with the slack), from where it is.
@@ -137,16 +156,16 @@ impl Recovery {
                         };
                         let out = room.max((1.0 + RECOVERY_SLACK) * least);
                         let p = problem.starts[v.robot].position[axis];
-                        if upper { p + out } else { p - out }
+                        (if upper { p + out } else { p - out }, out - least)
                     }
                     Against::Robot(_) | Against::Obstacle(_) => {
-                        ((1.0 - RECOVERY_SLACK) * (1.0 - v.depth) - v.closing * quarter).max(0.0)
+                        (((1.0 - RECOVERY_SLACK) * (1.0 - v.depth) - v.closing * quarter).max(0.0), f64::INFINITY)
                     }
                     // Never recovered from (a recovering team does not
                     // check it): the separation.
-                    Against::Closing(_) => 1.0,
+                    Against::Closing(_) => (1.0, f64::INFINITY),
                 };
-                Violation { robot: v.robot, against: v.against, floor }
+                Violation { robot: v.robot, against: v.against, floor, slack }
             })
             .chain(tolerated)
             .collect();
@@ -204,6 +223,7 @@ mod tests {
 
     use super::*;
     use crate::am::{AmSettings, Engine, Objective, Stop};
+    use crate::basis::DENSE_FACTOR;
     use crate::metrics::Metrics;
     use crate::plan::JointPlan;
     use crate::problem::{Dim, FEASIBILITY_TOLERANCE, ProblemError, Team};
@@ -334,7 +354,18 @@ mod tests {
             p.team.max_acceleration = Some(3.0);
             p.starts[1] = StartState { velocity: Vector3::new(0.3, 0.0, 0.0), ..moving };
         });
-        assert!(Recovery::of(&slow).violations.is_empty(), "0.3 m/s turns within 2.5 cm");
+        // At 0.3 m/s it turns within 3 cm: no violation, and a floor at
+        // the side itself, whose inset the projection keeps within what its
+        // stop leaves it.
+        assert_eq!(Problem { team: strict.team.clone(), ..slow.clone() }.validate(), Ok(()));
+        let near = Recovery::of(&slow).violations;
+        assert_eq!(
+            near.iter().map(|v| (v.robot, v.against)).collect::<Vec<_>>(),
+            [(1, Against::Braking { axis: 0, upper: true })]
+        );
+        let least = slow.least_excursion(1, 0, true, 3.0);
+        assert!(least < 0.03 && near[0].floor == 1.0, "{least} {near:?}");
+        assert!((near[0].slack - (0.05 - least)).abs() < 1e-12, "{near:?}");
         let unknown = Problem { team: Team { max_acceleration: None, ..strict.team.clone() }, ..strict.clone() };
         assert_eq!(unknown.validate(), Ok(()));
         let plan = planned(&problem);
@@ -381,13 +412,21 @@ mod tests {
         let slack = FEASIBILITY_TOLERANCE * problem.team.separation().0;
         assert!((v[0].floor - (x0 + (1.1 * least).min(least - 0.001 + slack))).abs() < 1e-12, "{}", v[0].floor);
         assert!(v[0].floor > 1.001 && v[0].floor <= 1.0 + slack + 1e-12);
-        // Verified, past the side and never past its floor.
+        // Verified, past the side and never past its floor at the
+        // verification's dense instants; between them by micrometres at
+        // most (the projection holds it 1 mm inside the floor, all its
+        // least excursion leaves, at the samples).
         let plan = planned(&problem);
         let x = |t: f64| plan.at(t)[1].position.x;
         assert!((0..=20).any(|k| x(k as f64 * 0.05) > 1.0), "it does leave the box");
-        for k in 0..=100 {
-            let t = k as f64 * 0.05;
+        let dense = DENSE_FACTOR * problem.team.samples - 1;
+        for k in 0..=dense {
+            let t = k as f64 * problem.team.horizon / dense as f64;
             assert!(x(t) <= v[0].floor, "x({t}) = {}", x(t));
+        }
+        for k in 0..=1000 {
+            let t = k as f64 * 0.005;
+            assert!(x(t) <= v[0].floor + 1e-5, "x({t}) = {}", x(t));
         }
         // An obstacle reported on robot 2 makes the problem invalid for a
         // team without start recovery: no floor for it (it would have been
@@ -402,12 +441,14 @@ mod tests {
         };
         assert!(matches!(bumped.validate(), Err(ProblemError::StartInObstacle { robot: 2, obstacle: 0 })));
         assert_eq!(Recovery::of(&bumped), Recovery::of(&problem));
-        // Slower, nothing to tolerate.
+        // Slower, it stops inside: its floor is the side itself.
         let slow = Problem {
             starts: problem.starts.iter().map(|s| StartState { velocity: s.velocity * 0.5, ..*s }).collect(),
             ..problem.clone()
         };
-        assert_eq!(Recovery::of(&slow), Recovery::default());
+        let v = Recovery::of(&slow).violations;
+        assert_eq!(v.iter().map(|v| (v.robot, v.floor)).collect::<Vec<_>>(), [(1, 1.0)]);
+        assert!(v[0].slack > 0.0);
     }
 
     #[test]

@@ -56,8 +56,8 @@ impl Against {
     }
 }
 
-/// A robot moving towards a side of the box it cannot stop before
-/// ([`crate::problem::Problem::braking_excesses`]).
+/// A robot moving towards a side of the box it cannot stop before, or
+/// stops just inside ([`crate::problem::Problem::braking_excesses`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct BrakingExcess {
     /// The robot.
@@ -68,7 +68,8 @@ pub struct BrakingExcess {
     pub upper: bool,
     /// How far it goes towards the side at the least, from its start (m).
     pub least: f64,
-    /// How far past the side that takes it (m, positive).
+    /// How far past the side that takes it (m; negative: how far inside
+    /// the side it can stop).
     pub excess: f64,
     /// Whether that is within [`crate::problem::FEASIBILITY_TOLERANCE`]
     /// (a floor the plan keeps to, [`crate::recovery`]) rather than beyond

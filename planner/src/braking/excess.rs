@@ -3,7 +3,7 @@
 //! [`Problem::braking_excesses`]): the module's bounds applied to a
 //! problem's starts.
 
-use super::{AxisStart, Form, GOAL_CHECK_NEAR, least_excursion, past_side_with_goal};
+use super::{AxisStart, GOAL_CHECK_NEAR, least_excursion, past_side_with_goal};
 use crate::problem::{BrakingExcess, Problem};
 
 impl Problem {
@@ -22,24 +22,18 @@ impl Problem {
         if speed <= 0.0 || table - room <= -GOAL_CHECK_NEAR {
             return table;
         }
-        let form = Form { degree: t.degree, samples: t.samples, horizon: t.horizon, max_acceleration };
-        let start = AxisStart {
-            position: s.position[axis],
-            velocity: s.velocity[axis],
-            acceleration: s.acceleration[axis],
-            goal: self.goals[i][axis],
-            side,
-            upper,
-        };
-        past_side_with_goal(form, start).map_or(table, |past| table.max(room + past))
+        let start = AxisStart { motion: self.axis_motion(i, axis), side, upper };
+        past_side_with_goal(self.team.form(max_acceleration), start).map_or(table, |past| table.max(room + past))
     }
 
     /// With [`crate::problem::Team::max_acceleration`], each robot and axis along which the
     /// robot, within [`crate::problem::FEASIBILITY_TOLERANCE`] of the box on that axis,
-    /// moves towards a side it cannot stop before: how far past the side
-    /// its least excursion takes it ([`Self::least_excursion`]). Beyond
-    /// the tolerance that is a start violation ([`crate::problem::Against::Braking`]); within
-    /// it, a floor the plan keeps to ([`crate::recovery`]).
+    /// moves towards a side it cannot stop before, or stops less than
+    /// [`GOAL_CHECK_NEAR`] inside: how far past the side its least
+    /// excursion takes it ([`Self::least_excursion`]; negative, the room
+    /// it leaves). Beyond the tolerance that is a start violation
+    /// ([`crate::problem::Against::Braking`]); within it, a floor the plan
+    /// keeps to ([`crate::recovery`]), at the side where it can stop inside.
     pub fn braking_excesses(&self) -> impl Iterator<Item = BrakingExcess> + '_ {
         let team = &self.team;
         let slack = team.box_tolerance();
@@ -57,7 +51,7 @@ impl Problem {
                 let (_, room) = self.side_and_room(robot, axis, upper);
                 let least = self.least_excursion(robot, axis, upper, max_acceleration);
                 let excess = least - room;
-                (excess > 0.0).then_some(BrakingExcess {
+                (excess > -GOAL_CHECK_NEAR).then_some(BrakingExcess {
                     robot,
                     axis,
                     upper,

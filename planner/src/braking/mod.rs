@@ -4,7 +4,10 @@
 //!
 //! Two lower bounds, the larger taken, and, for a start near a side, a
 //! third with the robot's goal ([`least_past_side`], in `to_goal.rs`;
-//! [`crate::problem::Problem::least_excursion`] takes the largest):
+//! [`crate::problem::Problem::least_excursion`] takes the largest; it and
+//! [`Reach`], where a robot can be at an instant, which the pair
+//! certificate of [`crate::closing`] reads, are linear programs on one
+//! robot's plan along one axis, `program.rs`):
 //!
 //! - the physical one, `v^2 / 2a`: constant braking at the largest
 //!   acceleration `a`, for any trajectory and any start acceleration;
@@ -55,9 +58,14 @@ use microlp::{ComparisonOp, OptimizationDirection, Problem as Lp};
 use crate::basis::{BOUNDARY_ROWS, DENSE_FACTOR, bernstein_row};
 
 mod excess;
+mod program;
+mod reach;
 mod to_goal;
 
-pub use to_goal::{AxisStart, Form, least_past_side};
+pub(crate) use program::Memo;
+pub use program::{AxisMotion, Form};
+pub use reach::Reach;
+pub use to_goal::{AxisStart, least_past_side};
 
 /// Starts whose table bound ([`least_excursion`]) leaves them more room
 /// than this (m) to the side are not checked with their goal
@@ -69,10 +77,17 @@ pub const GOAL_CHECK_NEAR: f64 = 0.05;
 /// ([`solve_in_background`]: the daemon, whose answers never wait for a
 /// program; it keeps the table's bound).
 pub fn past_side_with_goal(form: Form, start: AxisStart) -> Option<f64> {
-    if BACKGROUND.get().is_some() {
+    if !solves_programs() {
         return None;
     }
     least_past_side(form, start)
+}
+
+/// Whether this process solves a program per start ([`least_past_side`],
+/// [`Reach`]): not one that solves the table in the background
+/// ([`solve_in_background`]).
+pub fn solves_programs() -> bool {
+    BACKGROUND.get().is_none()
 }
 
 /// Spacing of the speeds the plan's bound is solved at (m/s).

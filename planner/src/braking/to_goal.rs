@@ -17,42 +17,19 @@
 //! (a relaxation): past the box's tolerance by it, no plan of the team's
 //! form within the limit passes the verification.
 
-use std::collections::VecDeque;
-use std::sync::Mutex;
-
 use microlp::{ComparisonOp, OptimizationDirection, Problem as Lp};
 
-use crate::basis::{BOUNDARY_ROWS, DENSE_FACTOR, bernstein_row};
+use super::program::{AxisMotion, AxisProgram, Constraint, Form, MAX_ROUNDS, Memo};
 
 /// One robot's motion along one axis, towards one side of the box.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct AxisStart {
-    /// Start position (m).
-    pub position: f64,
-    /// Start velocity (m/s).
-    pub velocity: f64,
-    /// Start acceleration (m/s^2).
-    pub acceleration: f64,
-    /// Goal (m), reached at rest at the horizon.
-    pub goal: f64,
+    /// Its start and goal along the axis.
+    pub motion: AxisMotion,
     /// The side's coordinate (m).
     pub side: f64,
     /// Whether the side is the upper one.
     pub upper: bool,
-}
-
-/// The plans' form: degree, constraint samples, horizon (s), and the
-/// largest acceleration (m/s^2).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Form {
-    /// Bernstein degree.
-    pub degree: usize,
-    /// Constraint samples (the dense instants are [`DENSE_FACTOR`] times as many).
-    pub samples: usize,
-    /// Horizon (s).
-    pub horizon: f64,
-    /// Largest acceleration (m/s^2).
-    pub max_acceleration: f64,
 }
 
 /// The least distance (m) past the side that any plan of `form` from
@@ -65,27 +42,14 @@ pub struct Form {
 /// problem (its validation, the planner's floors, the verdict's) solve
 /// each once.
 pub fn least_past_side(form: Form, start: AxisStart) -> Option<f64> {
-    let key = Key::of(form, start);
-    {
-        let memo = SOLVED.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
-        if let Some((_, value)) = memo.iter().find(|(k, _)| *k == key) {
-            return *value;
-        }
-    }
-    let value = solve(form, start);
-    let mut memo = SOLVED.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
-    if memo.len() == MEMO {
-        memo.pop_front();
-    }
-    memo.push_back((key, value));
-    value
+    SOLVED.get_or(Key::of(form, start), || solve(form, start))
 }
 
-/// How many programs [`least_past_side`] keeps.
-const MEMO: usize = 256;
+/// Every how many dense instants the program is first solved on.
+const COARSE: usize = 8;
 
 /// The programs solved lately.
-static SOLVED: Mutex<VecDeque<(Key, Option<f64>)>> = Mutex::new(VecDeque::new());
+static SOLVED: Memo<Key, Option<f64>> = Memo::new();
 
 /// A form and a start, bit for bit.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -93,102 +57,39 @@ struct Key([u64; 10]);
 
 impl Key {
     fn of(form: Form, start: AxisStart) -> Self {
-        Self([
-            form.degree as u64,
-            form.samples as u64,
-            form.horizon.to_bits(),
-            form.max_acceleration.to_bits(),
-            start.position.to_bits(),
-            start.velocity.to_bits(),
-            start.acceleration.to_bits(),
-            start.goal.to_bits(),
-            start.side.to_bits(),
-            u64::from(start.upper),
-        ])
+        let [a, b, c, d, e, f, g, h] = form.bits_with(start.motion);
+        Self([a, b, c, d, e, f, g, h, start.side.to_bits(), u64::from(start.upper)])
     }
 }
 
 /// [`least_past_side`]'s program, solved.
 fn solve(form: Form, start: AxisStart) -> Option<f64> {
-    let Form { degree, samples, horizon, max_acceleration } = form;
-    let n_xi = degree + 1;
-    let fixed = BOUNDARY_ROWS / 2;
-    if n_xi <= BOUNDARY_ROWS || samples < 2 {
-        return None;
-    }
     // The side's direction: distances past it are `sign * p - sign * side`.
     let sign = if start.upper { 1.0 } else { -1.0 };
-    // Start: position, velocity, acceleration; end: the goal at rest
-    // (normalised time, coefficients along the side's direction).
-    let n = degree as f64;
-    let c0 = sign * start.position;
-    let c1 = c0 + sign * start.velocity * horizon / n;
-    let c2 = 2.0 * c1 - c0 + sign * start.acceleration * horizon * horizon / (n * (n - 1.0));
-    let goal = sign * start.goal;
-    let known_coefficient = |k: usize| match k {
-        0 => Some(c0),
-        1 => Some(c1),
-        2 => Some(c2),
-        k if k + fixed >= n_xi => Some(goal),
-        _ => None,
-    };
-    let limit = max_acceleration * horizon * horizon;
-    // Every dense instant's rows: the free coefficients' weights and what
-    // the known ones give, for the position and the acceleration.
-    let dense = DENSE_FACTOR * samples;
-    let rows: Vec<[(Vec<f64>, f64); 2]> = (0..dense)
-        .map(|s| {
-            let tau = s as f64 / (dense - 1) as f64;
-            [0, 2].map(|order| {
-                let row = bernstein_row(degree, order, tau);
-                let known = row.iter().enumerate().filter_map(|(k, b)| known_coefficient(k).map(|c| c * b)).sum();
-                (row[fixed..n_xi - fixed].to_vec(), known)
-            })
-        })
-        .collect();
+    let program = AxisProgram::new(form, start.motion, sign)?;
     let mut lp = Lp::new(OptimizationDirection::Minimize);
-    let free: Vec<_> = (fixed..n_xi - fixed).map(|_| lp.add_var(0.0, (f64::NEG_INFINITY, f64::INFINITY))).collect();
+    let free: Vec<_> = (0..program.free()).map(|_| lp.add_var(0.0, (f64::NEG_INFINITY, f64::INFINITY))).collect();
     let past = lp.add_var(1.0, (f64::NEG_INFINITY, f64::INFINITY));
     // An instant's constraints: `sign p - past <= sign side`, `|a| <= limit`.
-    type Row = (Vec<(microlp::Variable, f64)>, ComparisonOp, f64);
-    let constraints = |s: usize| -> [Row; 3] {
-        let [(position, p_known), (acceleration, a_known)] = &rows[s];
-        let terms = |weights: &[f64]| -> Vec<_> { free.iter().zip(weights).map(|(v, b)| (*v, *b)).collect() };
-        let mut at = terms(position);
+    let constraints = |s: usize| -> [Constraint; 3] {
+        let (position, known) = program.at(s, 0);
+        let mut at: Vec<_> = free.iter().zip(position).map(|(v, b)| (*v, *b)).collect();
         at.push((past, -1.0));
-        [
-            (at, ComparisonOp::Le, sign * start.side - p_known),
-            (terms(acceleration), ComparisonOp::Le, limit - a_known),
-            (terms(acceleration), ComparisonOp::Ge, -limit - a_known),
-        ]
+        let [upper, lower] = program.acceleration_cuts(s, &free);
+        [(at, ComparisonOp::Le, sign * start.side - known), upper, lower]
     };
-    // Solved on every [`COARSE`]-th instant, then the instants the solution
-    // breaks added until it breaks none: the program on every instant,
-    // solved on a few of them.
-    for s in (0..dense).step_by(COARSE).chain([dense - 1]) {
+    for s in program.coarse(COARSE) {
         for (terms, op, rhs) in constraints(s) {
             lp.add_constraint(&terms, op, rhs);
         }
     }
     let mut solution = lp.solve().ok()?.into_solution().ok()?;
     for _ in 0..MAX_ROUNDS {
-        let x: Vec<f64> = free.iter().map(|v| solution.var_value(*v)).collect();
-        let value = |weights: &[f64], known: f64| known + weights.iter().zip(&x).map(|(w, c)| w * c).sum::<f64>();
         let side = sign * start.side + solution.var_value(past);
         // The instants that break the position and the acceleration rows
         // most, added one each per round.
-        let worst = |row: usize, excess: &dyn Fn(f64) -> f64| {
-            (0..dense)
-                .map(|s| {
-                    let (weights, known) = &rows[s][row];
-                    (s, excess(value(weights, *known)))
-                })
-                .filter(|(_, e)| *e > TOLERANCE)
-                .max_by(|a, b| a.1.total_cmp(&b.1))
-                .map(|(s, _)| s)
-        };
-        let past_side = worst(0, &|p| p - side);
-        let over_limit = worst(1, &|a| (a.abs() - limit) / limit);
+        let past_side = program.worst(&solution, &free, 0, &|p| p - side);
+        let over_limit = program.over_limit(&solution, &free);
         if past_side.is_none() && over_limit.is_none() {
             return Some(solution.objective());
         }
@@ -201,16 +102,6 @@ fn solve(form: Form, start: AxisStart) -> Option<f64> {
     None
 }
 
-/// Every how many dense instants the program is first solved on.
-const COARSE: usize = 8;
-
-/// Rounds of added instants before the program gives up (no claim).
-const MAX_ROUNDS: usize = 100;
-
-/// How far past a constraint (m, or relative for the acceleration) a
-/// solution may be and still count as keeping it.
-const TOLERANCE: f64 = 1e-9;
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -218,7 +109,7 @@ mod tests {
     const FORM: Form = Form { degree: 10, samples: 50, horizon: 5.0, max_acceleration: 3.0 };
 
     fn towards_upper(position: f64, velocity: f64, goal: f64) -> AxisStart {
-        AxisStart { position, velocity, acceleration: 0.0, goal, side: 1.0, upper: true }
+        AxisStart { motion: AxisMotion { position, velocity, acceleration: 0.0, goal }, side: 1.0, upper: true }
     }
 
     #[test]
@@ -238,7 +129,11 @@ mod tests {
             assert!(to_goal >= table - 1e-6, "{p} {v} {g}: {to_goal} below the table's {table}");
             let mirror = least_past_side(
                 FORM,
-                AxisStart { position: -p, velocity: -v, goal: -g, side: -1.0, upper: false, ..towards_upper(p, v, g) },
+                AxisStart {
+                    motion: AxisMotion { position: -p, velocity: -v, acceleration: 0.0, goal: -g },
+                    side: -1.0,
+                    upper: false,
+                },
             )
             .unwrap();
             assert!((mirror - to_goal).abs() < 1e-9, "{mirror} {to_goal}");

@@ -106,7 +106,9 @@ impl Limits {
     /// The same limits with the floors of `recovery` (the start violations
     /// of `problem`) at `grid`'s instants ([`crate::recovery`]; none
     /// without any). A side of the box keeps this limit's inset from its
-    /// floor, as from the box.
+    /// floor, as from the box, but no more than the floor's slack
+    /// ([`Violation::slack`]): further inside, no plan the robot can follow
+    /// keeps to the limit.
     pub(crate) fn with_recovery(mut self, problem: &Problem, recovery: &Recovery, grid: &SampleGrid) -> Self {
         if recovery.violations.is_empty() || recovery.until <= 0.0 {
             return self;
@@ -118,8 +120,8 @@ impl Limits {
             .iter()
             .map(|v| {
                 let floor = match v.against.side() {
-                    Some((axis, true)) => v.floor - inset(axis),
-                    Some((axis, false)) => v.floor + inset(axis),
+                    Some((axis, true)) => v.floor - inset(axis).min(v.slack),
+                    Some((axis, false)) => v.floor + inset(axis).min(v.slack),
                     None => v.floor,
                 };
                 Violation { floor, ..*v }

@@ -16,7 +16,9 @@
 //! Only the instants the verification checks count (from its first dense
 //! instant on), and only below the tolerance a start may be within
 //! ([`crate::problem::FEASIBILITY_TOLERANCE`]): a pair measured within it
-//! is accepted, and not certified.
+//! is accepted, and not certified. Where the ball leaves a pair near
+//! touching, `with_goals.rs` bounds it again under plans of the team's
+//! form (`Problem::unavoidable_pair`, which the validation calls).
 //!
 //! ```
 //! use flowopt_planner::closing::most_kept;
@@ -34,6 +36,8 @@
 //! ```
 
 use nalgebra::Vector3;
+
+pub mod with_goals;
 
 /// Golden-section steps of the search for the closest instant (the
 /// bracket shrinks to 0.618^60 of the horizon).

@@ -1,0 +1,199 @@
+//! The pair certificate with the plans' form: where the ball bound
+//! ([`super::unavoidable`]) leaves two robots near touching, the most
+//! they can keep under plans of the team's form from their starts to
+//! their goals, from each robot's reach along the directions of a frame
+//! ([`Reach`]; docs/ENGINE.md, "With the plans' form").
+
+use nalgebra::Vector3;
+
+use super::unavoidable;
+use crate::basis::DENSE_FACTOR;
+use crate::braking::{Memo, Reach, solves_programs};
+use crate::problem::{Dim, Problem, scaled, scaled_norm};
+
+/// A pair the ball leaves within this many times the separation it must
+/// keep is checked with the plans' form too ([`Problem::kept_with_goals`]): on
+/// 16-robot starts at 1 m/s that bound was 0.87-0.99 of the ball's.
+pub const WITH_GOALS_WITHIN: f64 = 1.2;
+
+impl Problem {
+    /// Where robots `i` and `j` cannot keep `touching` (scaled)
+    /// apart over `window` (s), their accelerations within `max_acceleration`:
+    /// whatever they do ([`unavoidable`], the ball), or, where the ball
+    /// leaves them near that and this process solves programs
+    /// ([`solves_programs`]), under every plan of the team's form from their
+    /// starts to their goals ([`Problem::kept_with_goals`]). The most they can keep,
+    /// and when.
+    pub fn unavoidable_pair(
+        &self,
+        (i, j): (usize, usize),
+        max_acceleration: f64,
+        window: (f64, f64),
+        touching: f64,
+    ) -> Option<(f64, f64)> {
+        let team = &self.team;
+        let (a, b) = team.separation();
+        let (si, sj) = (&self.starts[i], &self.starts[j]);
+        // The ball of reachable offsets, scaled: its radius by the larger of
+        // the two scales (a sphere holds it).
+        let spread = max_acceleration * if team.dim == Dim::Three { (1.0 / a).max(1.0 / b) } else { 1.0 / a };
+        let (q, r) = (
+            scaled(team.dim, &(si.position - sj.position), a, b),
+            scaled(team.dim, &(si.velocity - sj.velocity), a, b),
+        );
+        let near = if solves_programs() { touching * WITH_GOALS_WITHIN } else { touching };
+        let (most, at) = unavoidable(q, r, spread, window, near)?;
+        if most < touching {
+            return Some((most, at));
+        }
+        // Least at the first instants (a pair at rest or parting): no claim.
+        // The plans' form certifies pairs closing fast, where a polynomial
+        // cannot turn in time; elsewhere its programs would only cost time.
+        if at < 2.0 * window.0 {
+            return None;
+        }
+        // The frame: along the offset where the ball is least, across it (in
+        // the horizontal plane), and up.
+        let offset = (si.position - sj.position) + (si.velocity - sj.velocity) * at;
+        let along = Vector3::new(offset.x, offset.y, 0.0).try_normalize(1e-12).unwrap_or_else(Vector3::x);
+        let frame = [along, Vector3::new(-along.y, along.x, 0.0), Vector3::z()];
+        self.kept_with_goals((i, j), max_acceleration, frame, (window, at), touching)
+    }
+
+    /// Whether robots `i` and `j` cannot keep `touching`
+    /// (scaled) apart under plans of the team's form within
+    /// `max_acceleration` from their starts to their goals at some dense
+    /// instant of `window` (s): the most they can keep there, and when. At an
+    /// instant, the most is the farthest corner of the box their offset lies
+    /// in, in `frame` (orthonormal, the first two horizontal: each robot's
+    /// reach along each of its directions, [`Reach`], its acceleration held
+    /// within the limit along each, which holds it within the limit in all);
+    /// the search starts at the instant nearest `around` (where the ball bound
+    /// is least) and walks while that falls. `None`: no such instant found, or
+    /// a program that did not solve (no claim). The last 256 answers are kept
+    /// (a problem is validated more than once).
+    pub fn kept_with_goals(
+        &self,
+        (i, j): (usize, usize),
+        max_acceleration: f64,
+        frame: [Vector3<f64>; 3],
+        ((from, to), around): ((f64, f64), f64),
+        touching: f64,
+    ) -> Option<(f64, f64)> {
+        let team = &self.team;
+        let form = team.form(max_acceleration);
+        let axes = team.dim.axes();
+        let mut key: Vec<u64> = [from, to, around, touching].iter().map(|v| v.to_bits()).collect();
+        for direction in &frame[..axes] {
+            key.extend(form.bits_with(self.motion_along(i, direction)));
+            key.extend(form.bits_with(self.motion_along(j, direction)));
+        }
+        KEPT.get_or(key, || {
+            let (a, b) = team.separation();
+            let last = DENSE_FACTOR * team.samples - 1;
+            let step = team.horizon / last as f64;
+            let (first, end) = ((from / step).ceil() as usize, ((to / step).floor() as usize).min(last));
+            if first > end {
+                return None;
+            }
+            let mut reaches = Vec::with_capacity(axes);
+            for direction in &frame[..axes] {
+                reaches.push([
+                    Reach::new(form, self.motion_along(i, direction))?,
+                    Reach::new(form, self.motion_along(j, direction))?,
+                ]);
+            }
+            let mut kept_at = |s: usize| -> Option<f64> {
+                let tau = s as f64 / last as f64;
+                let mut corner = Vector3::zeros();
+                for (axis, [ri, rj]) in reaches.iter_mut().enumerate() {
+                    let ((lo_i, hi_i), (lo_j, hi_j)) = (ri.at(tau)?, rj.at(tau)?);
+                    corner[axis] = (lo_i - hi_j).abs().max((hi_i - lo_j).abs());
+                }
+                Some(scaled_norm(team.dim, &corner, a, b))
+            };
+            let mut at = ((around / step).round() as usize).clamp(first, end);
+            let mut least = kept_at(at)?;
+            // Far from touching there, no claim: the bound's least was within
+            // 2% of its value at the ball's instant on the pairs it certified,
+            // and the walk costs a few programs an instant.
+            if least >= touching * WALK_WITHIN {
+                return None;
+            }
+            for walk in [-1_isize, 1] {
+                while least >= touching {
+                    let Some(next) = at.checked_add_signed(walk).filter(|s| (first..=end).contains(s)) else { break };
+                    let kept = kept_at(next)?;
+                    if kept >= least {
+                        break;
+                    }
+                    (at, least) = (next, kept);
+                }
+            }
+            (least < touching).then_some((least, at as f64 * step))
+        })
+    }
+}
+
+/// A pair whose bound at the ball's instant is within this many times the
+/// separation it must keep is searched at the instants around it.
+const WALK_WITHIN: f64 = 1.05;
+
+/// The pairs checked lately.
+static KEPT: Memo<Vec<u64>, Option<(f64, f64)>> = Memo::new();
+
+#[cfg(test)]
+mod tests {
+    use super::super::most_kept;
+    use super::*;
+
+    /// Two robots head-on at `speed` each, `gap` m apart, each to a goal
+    /// beyond the other's start; a limit of 3 m/s^2.
+    fn head_on(gap: f64, speed: f64) -> Problem {
+        use crate::problem::{StartState, Team};
+        let team = Team { max_acceleration: Some(3.0), ..Team::default_for(Dim::Two, 2) };
+        let start = |x: f64, v: f64| StartState {
+            velocity: Vector3::new(v, 0.0, 0.0),
+            ..StartState::at_rest(Vector3::new(x, 0.0, 0.0))
+        };
+        Problem {
+            team,
+            starts: vec![start(-gap / 2.0, speed), start(gap / 2.0, -speed)],
+            goals: vec![Vector3::new(0.6, 0.3, 0.0), Vector3::new(-0.6, -0.3, 0.0)],
+            obstacles: vec![],
+        }
+    }
+
+    #[test]
+    fn a_pair_the_ball_leaves_apart_is_certified_with_the_plans_form_and_a_farther_one_is_planned() {
+        use crate::am::{AmSettings, Engine, Objective, Stop};
+        use crate::metrics::Metrics;
+        use crate::problem::{FEASIBILITY_TOLERANCE, ProblemError};
+        let touching = 1.0 - FEASIBILITY_TOLERANCE;
+        let window = (5.0 / 199.0, 5.0);
+        // 0.33 m apart closing at 1.2 m/s: whatever they do, they can keep
+        // more than the separation (the ball), but no two plans of the
+        // team's form from zero acceleration do.
+        let close = head_on(0.33, 0.6);
+        let spread = 3.0 / 0.2;
+        let (q, r) = (Vector3::new(1.65, 0.0, 0.0), Vector3::new(-6.0, 0.0, 0.0));
+        let (ball, around) = most_kept(q, r, spread, window);
+        assert!(ball > touching && ball < touching * WITH_GOALS_WITHIN, "{ball}");
+        let frame = [Vector3::x(), Vector3::y(), Vector3::z()];
+        let (kept, at) = close.kept_with_goals((0, 1), 3.0, frame, (window, around), touching).expect("certified");
+        assert!(kept < touching && kept < ball && at > 0.0, "{kept} {ball}");
+        match close.validate() {
+            Err(ProblemError::CannotAvoid { i: 0, j: 1, scaled, .. }) => assert_eq!(scaled, kept),
+            other => panic!("{other:?}"),
+        }
+        // Farther apart, the bound leaves them room, and a plan exists.
+        let far = head_on(0.40, 0.6);
+        assert_eq!(far.validate(), Ok(()));
+        let settings = AmSettings { limit_acceleration: true, ..AmSettings::optimiser() };
+        let engine = Engine::new(&far.team, 0, Objective::smoothness(), settings).unwrap();
+        let outcome = engine.solve(&far).unwrap();
+        assert_eq!(outcome.stop, Stop::Verified);
+        let m = Metrics::measure(&far, &engine.plan(outcome.state.xi));
+        assert!(m.success(0.2) && m.max_acceleration <= 3.0 + 1e-6, "{m:?}");
+    }
+}
