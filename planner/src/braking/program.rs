@@ -167,10 +167,16 @@ impl AxisProgram {
             })
             .collect();
         let basis = DenseRows::of(degree, samples);
-        let sum = |row: &[f64]| row.iter().zip(&known).filter_map(|(b, c)| c.map(|c| c * b)).sum();
-        let known_sums = basis.rows.iter().map(|[p, a]| [sum(p), sum(a)]).collect();
         let limit = max_acceleration * horizon * horizon;
-        Some(Self { basis, known_sums, limit, known, free: (fixed, n_xi - 2 * fixed), form })
+        let mut program = Self { basis, known_sums: Vec::new(), limit, known, free: (fixed, n_xi - 2 * fixed), form };
+        program.known_sums =
+            program.basis.rows.iter().map(|[p, a]| [program.known_sum(p), program.known_sum(a)]).collect();
+        Some(program)
+    }
+
+    /// What the fixed coefficients add to a row of the basis.
+    fn known_sum(&self, row: &[f64]) -> f64 {
+        row.iter().zip(&self.known).filter_map(|(b, c)| c.map(|c| c * b)).sum()
     }
 
     /// Dense instant `s`'s position (`which` 0) or acceleration (1) row.
@@ -182,9 +188,8 @@ impl AxisProgram {
     /// The position row at `tau` (normalised time), any instant.
     pub(super) fn position(&self, tau: f64) -> Row {
         let row = bernstein_row(self.form.degree, 0, tau);
-        let known = row.iter().zip(&self.known).filter_map(|(b, c)| c.map(|c| c * b)).sum();
         let (first, count) = self.free;
-        (row[first..first + count].to_vec(), known)
+        (row[first..first + count].to_vec(), self.known_sum(&row))
     }
 
     /// How many coefficients are free.

@@ -3,9 +3,9 @@
 //! ends at rest at its goal, and keeps its acceleration within the limit
 //! at the dense verification instants ([`super::program`]).
 //!
-//! The acceleration limit is held per axis (a box around the limit's
-//! disc), so the interval holds every reachable coordinate (a
-//! relaxation): two robots whose intervals at one instant keep them closer
+//! The acceleration limit is held along the axis alone (whatever the
+//! axis, a slab around the limit's disc), so the interval holds every
+//! reachable coordinate (a relaxation): two robots whose intervals at one instant keep them closer
 //! than their separation on every combination of ends cannot be kept
 //! apart by plans of the team's form ([`crate::problem::Problem::kept_with_goals`]).
 
