@@ -24,6 +24,9 @@ use crate::problem::{Dim, Obstacle, Team, scaled_norm};
 /// Grid cells along the longest workspace side.
 const CELLS: usize = 48;
 
+/// Points along a path [`Blockers::narrowest`] reads.
+const NARROWEST_READS: usize = 64;
+
 /// Static obstacles inflated for routing: centre, and the robot-obstacle
 /// separations `(a_o, b_o)` grown by the margin and one grid cell; with the
 /// routing grid of the team they were built for.
@@ -89,6 +92,26 @@ impl Blockers {
     /// Whether `p` is inside an inflated obstacle.
     pub fn blocks(&self, p: &Vector3<f64>) -> bool {
         self.obstacles.iter().any(|(c, a, b)| self.inside(p, c, *a, *b))
+    }
+
+    /// How far `p` lies outside the nearest inflated obstacle, in that
+    /// obstacle's scaled units (negative inside it; infinite with none).
+    pub fn clearance(&self, p: &Vector3<f64>) -> f64 {
+        self.obstacles
+            .iter()
+            .map(|(c, a, b)| scaled_norm(self.dim, &(p - c), *a, *b) - 1.0)
+            .fold(f64::INFINITY, f64::min)
+    }
+
+    /// The arc-length fraction of `path` (in `(0, 1)`) at which it passes
+    /// closest to an inflated obstacle: where robots routed through the
+    /// same door or gap meet.
+    pub fn narrowest(&self, path: &[Vector3<f64>]) -> f64 {
+        (1..NARROWEST_READS)
+            .map(|r| r as f64 / NARROWEST_READS as f64)
+            .map(|s| (self.clearance(&along(path, s)), s))
+            .min_by(|a, b| a.0.total_cmp(&b.0))
+            .map_or(0.5, |(_, s)| s)
     }
 
     /// Whether `p` is inside the inflated obstacle centred at `c` with
@@ -295,7 +318,7 @@ impl Ord for Ordered {
 }
 
 /// The point at arc-length fraction `s` in `[0, 1]` along a polyline.
-fn along(path: &[Vector3<f64>], s: f64) -> Vector3<f64> {
+pub(crate) fn along(path: &[Vector3<f64>], s: f64) -> Vector3<f64> {
     let lengths: Vec<f64> = path.windows(2).map(|w| (w[1] - w[0]).norm()).collect();
     let total: f64 = lengths.iter().sum();
     let mut left = s.clamp(0.0, 1.0) * total;
@@ -306,6 +329,49 @@ fn along(path: &[Vector3<f64>], s: f64) -> Vector3<f64> {
         left -= len;
     }
     path[path.len() - 1]
+}
+
+/// The rest-to-rest quintic timing: the fraction of a path covered at
+/// normalised time `tau`, `10 tau^3 - 15 tau^4 + 6 tau^5`.
+pub fn quintic(tau: f64) -> f64 {
+    tau * tau * tau * (10.0 - 15.0 * tau + 6.0 * tau * tau)
+}
+
+/// The normalised time at which [`quintic`] covers `s` of a path.
+pub fn quintic_inverse(s: f64) -> f64 {
+    // The quintic rises monotonically on [0, 1]: bisection to 2^-40.
+    let (mut lo, mut hi) = (0.0, 1.0);
+    for _ in 0..40 {
+        let mid = 0.5 * (lo + hi);
+        if quintic(mid) < s {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    0.5 * (lo + hi)
+}
+
+/// A warp of a timing's clock: the timing read at `to` at normalised time
+/// `at`, linearly in between from 0 and to 1 (rest at both ends is kept).
+/// It moves when a robot passes a point of its path and nothing else.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Warp {
+    /// When (normalised time, in `(0, 1)`).
+    pub at: f64,
+    /// The unwarped clock's reading then (in `(0, 1)`).
+    pub to: f64,
+}
+
+impl Warp {
+    /// The warped clock at `tau`.
+    pub fn clock(&self, tau: f64) -> f64 {
+        if tau <= self.at {
+            tau / self.at * self.to
+        } else {
+            self.to + (tau - self.at) / (1.0 - self.at) * (1.0 - self.to)
+        }
+    }
 }
 
 /// Least-squares fit of Bernstein coefficients to sampled positions under
@@ -343,13 +409,13 @@ impl Fitter {
     }
 
     /// Samples along `path` at the basis instants with the rest-to-rest
-    /// quintic timing `s(tau) = 10 tau^3 - 15 tau^4 + 6 tau^5`: one series
-    /// per axis.
-    pub fn timed_samples(&self, path: &[Vector3<f64>], axes: usize) -> Vec<Vec<f64>> {
+    /// quintic timing `s(tau) = 10 tau^3 - 15 tau^4 + 6 tau^5` ([`quintic`]),
+    /// its clock warped by `warp` where given: one series per axis.
+    pub fn timed_samples(&self, path: &[Vector3<f64>], axes: usize, warp: Option<Warp>) -> Vec<Vec<f64>> {
         let mut series = vec![vec![0.0; self.samples]; axes];
         for k in 0..self.samples {
             let tau = k as f64 / (self.samples - 1) as f64;
-            let s = tau * tau * tau * (10.0 - 15.0 * tau + 6.0 * tau * tau);
+            let s = quintic(warp.map_or(tau, |w| w.clock(tau)));
             let p = along(path, s);
             for (a, ser) in series.iter_mut().enumerate() {
                 ser[k] = p[a];
@@ -426,7 +492,7 @@ mod tests {
         let basis = Basis::new(10, 50).unwrap();
         let fitter = Fitter::new(&basis).unwrap();
         let path = [Vector3::new(0.0, 0.0, 0.0), Vector3::new(1.0, 0.0, 0.0)];
-        let q = fitter.timed_samples(&path, 2);
+        let q = fitter.timed_samples(&path, 2, None);
         let mut xi = vec![0.0; 11];
         fitter.fit(&q[0], &[0.0, 0.0, 0.0, 1.0, 0.0, 0.0], &mut xi);
         assert!((xi[0]).abs() < 1e-12 && (xi[10] - 1.0).abs() < 1e-12);

@@ -35,6 +35,7 @@
 mod acceleration;
 mod engine;
 mod pairs;
+mod passages;
 mod prepare;
 mod projection;
 mod recheck;
@@ -48,7 +49,7 @@ pub use engine::{AmOutcome, AmState, Engine, EngineError, FIRST_CONSTRAINED_SAMP
 pub use prepare::Prepared;
 pub use projection::Limits;
 pub use recheck::Recheck;
-pub use run::{ATTEMPT_ITERATIONS_PER_ROBOT, Budget, CREW_MIN_ROBOTS};
+pub use run::{ATTEMPT_ITERATIONS_PER_ROBOT, Budget, CREW_MIN_ROBOTS, STALL_PROGRESS};
 pub use set::EngineSet;
 pub use settings::{AmSettings, RhoSchedule, Stop};
 pub use start::Rerouter;

@@ -3,6 +3,7 @@
 //! linear term, and the limits the projection and the verification check.
 
 use super::engine::{Engine, EngineError, Objective};
+use super::passages::Routed;
 use super::projection::Limits;
 use crate::basis::BOUNDARY_ROWS;
 use crate::kkt::TeamKkt;
@@ -33,6 +34,9 @@ pub struct Prepared {
     pub(super) verify_start: Limits,
     /// Boundary values `[axis][robot][6]` (normalised time).
     pub(super) boundary: Vec<f64>,
+    /// The robots the cold start routed around static obstacles, for the
+    /// restarts ([`super::passages`]).
+    pub(super) routed: Vec<Routed>,
 }
 
 impl Prepared {
@@ -103,8 +107,8 @@ impl Engine {
             (_, Some(x)) => x.to_vec(),
             (_, None) => Vec::new(),
         };
-        let cold = match sample {
-            Some(x) => x.to_vec(),
+        let (cold, routed) = match sample {
+            Some(x) => (x.to_vec(), Vec::new()),
             None => self.smooth_start(problem, &b),
         };
         let margin = self.settings.margin;
@@ -125,6 +129,7 @@ impl Engine {
                 .with_rules(chord, broad)
                 .with_recovery(problem, &recovery, &self.dense_start),
             boundary: b,
+            routed,
         })
     }
 

@@ -20,6 +20,13 @@ const DEADLINE_CHECK_EVERY: usize = 4;
 /// attempt and in none of four attempts of 2,500 (docs/BENCHMARKS.md).
 pub const ATTEMPT_ITERATIONS_PER_ROBOT: usize = 25;
 
+/// How much an attempt's lowest primal residual must fall (relative) to
+/// count as progress for [`super::AmSettings::stall`]. Attempts that verify
+/// fall steadily until they do; jammed ones level off within a few hundred
+/// iterations (doorways and aisles of 16 robots: at 0.1-0.4 m, within 1%
+/// for the rest of a 2,500-iteration attempt).
+pub const STALL_PROGRESS: f64 = 0.05;
+
 /// Teams at least this large iterate on [`super::AmSettings::threads`]
 /// threads, at most one per robot block of the projection (16 robots);
 /// smaller ones alone (starting the threads costs more than they save).
@@ -91,19 +98,25 @@ impl Engine {
     /// [`Self::solve_prepared`] that also stops ([`Stop::Deadline`],
     /// [`Stop::Cancelled`]) with the current iterate once `budget` is spent.
     pub fn solve_prepared_within(&self, prepared: &Prepared, budget: &Budget<'_>) -> AmOutcome {
-        let attempts = self.attempts();
-        let share = self.settings.max_iterations / attempts;
+        let max = self.settings.max_iterations;
+        let stall = self.stall_window(prepared);
+        // Attempts that end on a stall go on while the cap lasts; otherwise
+        // each gets its share of it.
+        let attempts = if stall.is_some() { usize::MAX } else { self.attempts() };
+        let share = max / attempts;
         let mut iterations = 0;
+        let mut started = 0;
         let mut history = Vec::new();
         let mut best: Option<AmOutcome> = None;
         for attempt in 0..attempts {
-            let mut state = self.cold_start(prepared);
-            if attempt > 0 {
-                self.perturb(&mut state.xi, attempt as u64);
-            }
-            let cap =
-                if attempt + 1 == attempts { self.settings.max_iterations - share * (attempts - 1) } else { share };
-            let mut outcome = self.run_capped(prepared, state, cap, budget);
+            let state = if attempt == 0 { self.cold_start(prepared) } else { self.restart(prepared, attempt) };
+            let cap = match stall {
+                Some(_) => max - iterations,
+                None if attempt + 1 == attempts => max - share * (attempts - 1),
+                None => share,
+            };
+            let mut outcome = self.run_capped(prepared, state, cap, stall, budget);
+            started += 1;
             iterations += outcome.iterations;
             history.append(&mut outcome.history);
             let done = outcome.stop != Stop::IterationCap;
@@ -114,15 +127,26 @@ impl Engine {
             if best.as_ref().is_none_or(|b| done || outcome.primal < b.primal) {
                 best = Some(outcome);
             }
-            if done {
+            if done || iterations >= max {
                 break;
             }
         }
         let mut outcome = best.expect("at least one attempt runs");
         outcome.iterations = iterations;
-        outcome.attempts = attempts.min(history.len().max(1)).max(1);
+        outcome.attempts = started;
         outcome.history = history;
         outcome
+    }
+
+    /// The iterations without progress that end an attempt
+    /// ([`AmSettings::stall`]), where the cold start routed robots and the
+    /// settings ask for it: at least [`ATTEMPT_ITERATIONS_PER_ROBOT`] per
+    /// robot. `None`: attempts run their share.
+    ///
+    /// [`AmSettings::stall`]: super::AmSettings::stall
+    fn stall_window(&self, prepared: &Prepared) -> Option<usize> {
+        (self.settings.stall > 0 && !prepared.routed.is_empty())
+            .then(|| self.settings.stall.max(ATTEMPT_ITERATIONS_PER_ROBOT * self.team.robots))
     }
 
     /// Attempts of a restarted solve: [`AmSettings::restarts`] + 1, fewer
@@ -158,15 +182,24 @@ impl Engine {
     /// [`Self::run`] that also stops ([`Stop::Deadline`],
     /// [`Stop::Cancelled`]) once `budget` is spent.
     pub fn run_within(&self, prepared: &Prepared, state: AmState, budget: &Budget<'_>) -> AmOutcome {
-        self.run_capped(prepared, state, self.settings.max_iterations, budget)
+        self.run_capped(prepared, state, self.settings.max_iterations, None, budget)
     }
 
-    fn run_capped(&self, prepared: &Prepared, state: AmState, cap: usize, budget: &Budget<'_>) -> AmOutcome {
+    /// At most `cap` iterations, fewer once `stall` iterations pass without
+    /// progress ([`STALL_PROGRESS`]; [`Stop::IterationCap`] either way).
+    fn run_capped(
+        &self,
+        prepared: &Prepared,
+        state: AmState,
+        cap: usize,
+        stall: Option<usize>,
+        budget: &Budget<'_>,
+    ) -> AmOutcome {
         // One thread per robot block at most: a step's blocks would not keep
         // more busy.
         let n = self.team.robots;
         let threads = if n < CREW_MIN_ROBOTS { 1 } else { self.settings.threads.min(n.div_ceil(ROBOT_BLOCK)).max(1) };
-        Crew::with(threads, |crew| self.iterate(prepared, state, cap, budget, crew))
+        Crew::with(threads, |crew| self.iterate(prepared, state, cap, stall, budget, crew))
     }
 
     /// The iterations of [`Self::run_capped`] on `crew`.
@@ -175,6 +208,7 @@ impl Engine {
         prepared: &Prepared,
         mut state: AmState,
         cap: usize,
+        stall: Option<usize>,
         budget: &Budget<'_>,
         crew: &Crew<'_>,
     ) -> AmOutcome {
@@ -185,9 +219,15 @@ impl Engine {
         let mut history = Vec::new();
         let mut iterations = 0;
         let s = &self.settings;
+        // The lowest primal residual so far, and when it last fell by
+        // STALL_PROGRESS.
+        let (mut lowest, mut progressed) = (f64::INFINITY, 0);
         loop {
             let primal = projection.run(crew, dim, n, &self.grid, &prepared.constraint, &state.xi)
                 + self.acceleration_step(&state.xi, &mut work);
+            if primal < (1.0 - STALL_PROGRESS) * lowest {
+                (lowest, progressed) = (primal, iterations);
+            }
             let verifying = s.verify_every > 0;
             let due = primal <= s.tolerance || iterations % s.verify_every.max(1) == 0 || iterations >= cap;
             // Every update meets the boundary conditions; a given start
@@ -202,7 +242,7 @@ impl Engine {
                 && self.verify_with(verifier.get_or_insert_with(|| Verifier::new(self)), crew, prepared, &state.xi)
             {
                 Some(Stop::Verified)
-            } else if iterations >= cap {
+            } else if iterations >= cap || stall.is_some_and(|w| iterations - progressed > w) {
                 Some(Stop::IterationCap)
             } else if iterations % DEADLINE_CHECK_EVERY == 0 {
                 budget.spent()
@@ -291,6 +331,51 @@ mod tests {
         // The default cap of 10,000 gives four attempts up to 100 robots.
         assert_eq!([attempts(16), attempts(64), attempts(100)], [4, 4, 4]);
         assert_eq!([attempts(128), attempts(256), attempts(1000)], [3, 1, 1]);
+    }
+
+    #[test]
+    fn a_doorway_that_fixed_shares_leave_jammed_verifies_with_attempts_that_end_on_a_stall() {
+        // Eight robots swapping rooms through one door: from the routes'
+        // one timing all meet there, and every perturbed attempt of the
+        // fixed shares ends at its cap; attempts that stop on a stall and
+        // move the robots' passages through the door find an order.
+        let (problem, _) =
+            crate::scenes::Scene::new(crate::scenes::Family::Doorway, Dim::Two, 8, 100).generate().unwrap();
+        let solve = |stall| {
+            let settings = AmSettings { stall, ..AmSettings::optimiser() };
+            Engine::new(&problem.team, problem.obstacles.len(), Objective::smoothness(), settings)
+                .unwrap()
+                .solve(&problem)
+                .unwrap()
+        };
+        let shares = solve(0);
+        assert_eq!((shares.stop, shares.attempts, shares.iterations), (Stop::IterationCap, 4, 10_000));
+        let stalls = solve(300);
+        assert_eq!(stalls.stop, Stop::Verified);
+        assert!(
+            stalls.attempts > 1 && stalls.iterations < 10_000,
+            "{} attempts, {}",
+            stalls.attempts,
+            stalls.iterations
+        );
+    }
+
+    #[test]
+    fn without_routed_robots_attempts_keep_their_shares_whatever_the_stall() {
+        // Open space routes nobody: runs that only the cap ends (no
+        // verification, a tolerance never met) make the same attempts and
+        // plans with the stall rule on or off.
+        let team = Team::default_for(Dim::Two, 2);
+        let problem = RandomScenario::new(team.clone()).generate(5).unwrap();
+        let solve = |stall| {
+            let settings =
+                AmSettings { stall, max_iterations: 200, verify_every: 0, tolerance: -1.0, ..AmSettings::optimiser() };
+            Engine::new(&team, 0, Objective::smoothness(), settings).unwrap().solve(&problem).unwrap()
+        };
+        let (off, on) = (solve(0), solve(300));
+        assert_eq!((off.stop, off.attempts, off.iterations), (Stop::IterationCap, 4, 200));
+        assert_eq!((on.attempts, on.iterations), (off.attempts, off.iterations));
+        assert_eq!(on.state.xi, off.state.xi);
     }
 
     #[test]

@@ -96,6 +96,17 @@ pub struct AmSettings {
     /// attempt hits its share of the iteration cap (fewer for big teams:
     /// `Engine::attempts`).
     pub restarts: usize,
+    /// Optimiser only, where its cold start routed robots around static
+    /// obstacles: an attempt ends once its primal residual has not fallen
+    /// by [`super::STALL_PROGRESS`] for this many iterations (or
+    /// [`super::ATTEMPT_ITERATIONS_PER_ROBOT`] per robot, whichever is
+    /// more), and the next starts from the routes with each routed robot
+    /// passing its route's narrowest point at another seeded time
+    /// (`am/passages.rs`); attempts go on while the iteration cap lasts,
+    /// in place of `restarts`' fixed shares. 0: off (docs/ENGINE.md,
+    /// "Restarts through narrow passages").
+    #[serde(default)]
+    pub stall: usize,
     /// Optimiser only: start a robot whose straight segment crosses a static
     /// obstacle from a route around the obstacles ([`crate::route`]) instead
     /// of the smoothest curve (the paper's cold start).
@@ -172,6 +183,7 @@ impl AmSettings {
             verify_every: 10,
             verify_below: 0.1,
             restarts: 3,
+            stall: 300,
             routed_start: true,
             record_history: false,
             verify_margin: 0.0,
@@ -200,6 +212,7 @@ impl AmSettings {
             verify_every: 10,
             verify_below: 0.1,
             restarts: 0,
+            stall: 0,
             routed_start: false,
             record_history: false,
             verify_margin: 0.0,
@@ -219,6 +232,7 @@ impl AmSettings {
         self.tolerance = tolerance;
         self.verify_every = 0;
         self.restarts = 0;
+        self.stall = 0;
         self.record_history = true;
         self
     }

@@ -1,17 +1,19 @@
 //! Where iterations start: the optimiser's cold start (the smoothest curves,
 //! or routes around static obstacles), the SF's sample, the rerouting of SF
-//! samples through static obstacles, and the restarts' perturbation.
+//! samples through static obstacles, and the restarts' starts (perturbed,
+//! with routed robots' passages moved: [`super::passages`]).
 
 use nalgebra::Vector3;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 use super::engine::{AmState, Engine, EngineError, FIRST_CONSTRAINED_SAMPLE};
+use super::passages::Routed;
 use super::prepare::Prepared;
 use crate::basis::BOUNDARY_ROWS;
 use crate::plan::JointPlan;
 use crate::problem::{Problem, scaled_norm};
-use crate::route::{Blockers, route};
+use crate::route::{Blockers, Warp, route};
 
 /// Amplitude of a restart's perturbation of the interior coefficients, in
 /// robot separations.
@@ -121,8 +123,9 @@ fn veer_bump(degree: usize) -> Vec<f64> {
 impl Engine {
     /// The optimiser's cold start: per robot the smoothest curve meeting the
     /// boundary conditions, or, with `routed_start`, a fitted route around the
-    /// static obstacles when its straight segment crosses one.
-    pub(super) fn smooth_start(&self, problem: &Problem, b: &[f64]) -> Vec<f64> {
+    /// static obstacles when its straight segment crosses one; with the
+    /// robots so routed.
+    pub(super) fn smooth_start(&self, problem: &Problem, b: &[f64]) -> (Vec<f64>, Vec<Routed>) {
         let n = self.team.robots;
         let nx = self.n_xi;
         let mut xi = vec![0.0; self.coeff_len()];
@@ -133,22 +136,44 @@ impl Engine {
             self.veer(problem, &mut xi);
         }
         if !self.settings.routed_start {
-            return xi;
+            return (xi, Vec::new());
         }
         let blockers = self.blockers(problem);
         if blockers.is_empty() {
-            return xi;
+            return (xi, Vec::new());
         }
+        let mut routed = Vec::new();
         for i in 0..n {
             let (start, goal) = (problem.starts[i].position, problem.goals[i]);
             if !blockers.segment_blocked(&start, &goal) {
                 continue;
             }
-            if let Some(curve) = self.routed_curve(problem, &blockers, b, i) {
-                set_curve(&mut xi, &curve, n, nx, i);
+            if let Some(path) = route(&blockers, &start, &goal) {
+                set_curve(&mut xi, &self.fitted_curve(&path, b, i, None), n, nx, i);
+                routed.push(Routed::new(&blockers, i, path));
             }
         }
-        xi
+        (xi, routed)
+    }
+
+    /// The start of attempt `attempt` (from 1) of a restarted solve: the
+    /// cold start with, under [`AmSettings::stall`], each routed robot
+    /// passing its narrowest point at a seeded other time
+    /// ([`Routed::shifted`]), and its interior coefficients perturbed
+    /// ([`Self::perturb`]).
+    ///
+    /// [`AmSettings::stall`]: super::AmSettings::stall
+    pub(super) fn restart(&self, prepared: &Prepared, attempt: usize) -> AmState {
+        let mut state = self.cold_start(prepared);
+        if self.settings.stall > 0 {
+            let mut rng = ChaCha8Rng::seed_from_u64(attempt as u64);
+            for r in &prepared.routed {
+                let curve = self.fitted_curve(&r.path, &prepared.boundary, r.robot, Some(r.shifted(&mut rng)));
+                set_curve(&mut state.xi, &curve, self.team.robots, self.n_xi, r.robot);
+            }
+        }
+        self.perturb(&mut state.xi, attempt as u64);
+        state
     }
 
     /// Breaks symmetric deadlocks (antipodal swaps, crossing lanes): every
@@ -208,14 +233,21 @@ impl Engine {
     /// boundary values (from `b`, [`Problem::boundary_values`]), `[axis][coef]`;
     /// `None` when its goal is walled off on the routing grid.
     fn routed_curve(&self, problem: &Problem, blockers: &Blockers, b: &[f64], i: usize) -> Option<Vec<f64>> {
-        let (n, nx) = (self.team.robots, self.n_xi);
         let path = route(blockers, &problem.starts[i].position, &problem.goals[i])?;
+        Some(self.fitted_curve(&path, b, i, None))
+    }
+
+    /// Robot `i`'s curve (`[axis][coef]`) fitted to `path` under the
+    /// quintic timing, its clock warped by `warp` where given, meeting its
+    /// boundary values (from `b`).
+    fn fitted_curve(&self, path: &[Vector3<f64>], b: &[f64], i: usize, warp: Option<Warp>) -> Vec<f64> {
+        let (n, nx) = (self.team.robots, self.n_xi);
         let mut curve = vec![0.0; self.team.dim.axes() * nx];
-        for (a, q) in self.fitter.timed_samples(&path, self.team.dim.axes()).iter().enumerate() {
+        for (a, q) in self.fitter.timed_samples(path, self.team.dim.axes(), warp).iter().enumerate() {
             let row = a * n + i;
             self.fitter.fit(q, &b[row * BOUNDARY_ROWS..(row + 1) * BOUNDARY_ROWS], &mut curve[a * nx..(a + 1) * nx]);
         }
-        Some(curve)
+        curve
     }
 
     /// A [`Rerouter`] for `problem`, which must have the engine's team and
@@ -307,7 +339,7 @@ mod tests {
         let engine = Engine::new(&team, 1, Objective::filter(3.0), AmSettings::safety_filter()).unwrap();
         // Straight lines (the SF routes no cold start): robot 0 crosses the
         // obstacle, robot 1 passes above it.
-        let mut xi = engine.smooth_start(&problem, &problem.boundary_values());
+        let (mut xi, _) = engine.smooth_start(&problem, &problem.boundary_values());
         let before = xi.clone();
         let mut rerouter = engine.rerouter(&problem).unwrap();
         assert_eq!(rerouter.apply(&mut xi), 1);
@@ -340,7 +372,7 @@ mod tests {
             goals: vec![at(0.8, 0.0)],
             obstacles: vec![Obstacle { position: at(-0.5 - 1.02 * a, 0.0), velocity: Vector3::zeros(), shape: ball }],
         };
-        let mut xi = engine.smooth_start(&problem, &problem.boundary_values());
+        let (mut xi, _) = engine.smooth_start(&problem, &problem.boundary_values());
         let before = xi.clone();
         assert_eq!(engine.rerouter(&problem).unwrap().apply(&mut xi), 0);
         assert_eq!(xi, before);

@@ -98,6 +98,8 @@ pub(super) fn header(f: &HeaderFacts) -> String {
          wall-clock times per instance.\n\n\
          Methods: **baseline** is the from-scratch AM optimiser (smoothness cost, routed cold start, up to {} \
          restarts sharing an iteration cap of {}, fewer where that leaves an attempt under {} iterations per robot; \
+         where the cold start routed robots around static obstacles, attempts that make no progress for {} \
+         iterations end and the next moves when each routed robot passes its route's narrowest point, while the cap lasts; \
          on {} thread(s) from {} robots, the same plans for every count); **flowopt** is the learned pipeline ({} flow candidates in {} \
          {:?} steps without obstacles, {} in {} with, {reroute}top {} by primal residual, {init}, safety filter on {} thread(s) without obstacles and {} with {metric} \
          with the penalty starting at {} and doubling every {} iterations up to {}, cap {}, {settle}; up to {} rounds of \
@@ -119,6 +121,7 @@ pub(super) fn header(f: &HeaderFacts) -> String {
         optimiser.restarts,
         optimiser.max_iterations,
         flowopt_planner::am::ATTEMPT_ITERATIONS_PER_ROBOT,
+        optimiser.stall,
         f.settings.threads(),
         flowopt_planner::am::CREW_MIN_ROBOTS,
         pipeline.candidates,
