@@ -185,13 +185,15 @@ impl Scene {
     /// (seeded; up to 0.16 diameters wider with the jitter, and the strips
     /// between the outer pillars and the workspace's sides from half a
     /// passage up), robots from seeded places to seeded places among them
-    /// at least a half-width away.
+    /// at least a half-width away; the team at the resolution for its
+    /// pillars ([`Team::resolved_for_obstacles`]).
     pub(super) fn pillar_forest(&self, w: f64, rng: &mut ChaCha8Rng) -> Result<Problem, ScenarioError> {
         self.enough_for_clutter(Family::PillarForest)?;
         let (dim, n) = (self.dim, self.robots);
         let team = team_in(dim, n, w);
         // Jittered pillars keep the passage drawn between them.
         let pitch = passage(&team, rng) + 2.0 * (FOREST_PILLAR_RADIUS + pillar_jitter(FOREST_PILLAR_RADIUS));
+        let team = team.resolved_for_obstacles(pitch);
         let per_axis = ((2.0 * w / pitch) as usize).max(1);
         let mut obstacles = Vec::new();
         for i in 0..per_axis {
