@@ -291,8 +291,12 @@ impl Team {
     /// Degree and sample count both grown by `factor` (rounded up) where it
     /// is over 1, the degree to at most [`Team::MAX_RESOLVED_DEGREE`].
     fn resolved_by(self, factor: f64) -> Self {
+        // NaN first: `min` would turn it into the cap.
+        if factor.is_nan() {
+            return self;
+        }
         let factor = factor.min(Self::MAX_RESOLVED_DEGREE as f64 / self.degree as f64);
-        if factor.is_nan() || factor <= 1.0 {
+        if factor <= 1.0 {
             return self;
         }
         let grow = |x: usize| (x as f64 * factor).ceil() as usize;
@@ -599,6 +603,10 @@ mod tests {
         // Past the highest degree the growth stops.
         let huge = Team { workspace: Workspace::centred(8.0), ..team.clone() }.resolved_for_workspace();
         assert_eq!((huge.degree, huge.samples), (Team::MAX_RESOLVED_DEGREE, 100));
+        // A box with no size leaves the team as it is.
+        let unsized_box = Team { workspace: Workspace::centred(f64::NAN), ..team.clone() };
+        let kept = unsized_box.resolved_for_workspace();
+        assert_eq!((kept.degree, kept.samples), (team.degree, team.samples));
     }
 
     #[test]

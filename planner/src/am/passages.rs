@@ -13,9 +13,10 @@ use rand_chacha::ChaCha8Rng;
 
 use crate::route::{Blockers, Warp, quintic_inverse};
 
-/// The most a restart moves a passage, in normalised time: 0.25 and 0.4
-/// verified as often on 8- and 16-robot clutter (seeds 100-119, 200-219),
-/// 0.4 a little slower (docs/experiments/2026-11-29-restarts-through-narrow-passages.md).
+/// The most a restart moves a passage, in normalised time: 0.4 verified
+/// three more scenes of 8 robots on seeds 100-119 (doorway, aisles), and
+/// on the held-out seeds 200-219 three fewer aisles of 16 and one more
+/// pillar forest of 16, the rest alike (docs/experiments/2026-11-29-restarts-through-narrow-passages.md).
 const SPREAD: f64 = 0.25;
 
 /// The earliest and latest passage a restart gives (normalised time): a
