@@ -169,7 +169,9 @@ pub struct TeamConfig {
     #[serde(default = "default_obstacle_prediction_s")]
     pub obstacle_prediction_s: f64,
     /// Seconds a robot measured touching another robot or an obstacle, or
-    /// outside the box (by at most half a separation), or moving towards a
+    /// outside the box (from where a plan brings it back within half the
+    /// horizon, given longer where it needs it:
+    /// `flowopt_planner::problem::StartViolation::return_time`), or moving towards a
     /// side faster than it can stop before it, has to clear it in
     /// the plans made from that snapshot: the team goes on being planned,
     /// the contact held to what the start allows until then

@@ -280,10 +280,19 @@ mod tests {
         assert_eq!((m.task, m.recovering), (Ok(()), Some(3)));
         let strict = measured(&s, &team, PLAUSIBLE).unwrap();
         assert_eq!((strict.task, strict.recovering), (Err(Rejection::at(Reason::StartOutsideWorkspace, 3)), None));
-        // Deeper than half a separation: rejected in either team.
+        // Deeper than half a separation: rejected in either team without
+        // an acceleration limit; with one, planned back from where a plan
+        // can bring it back within half the horizon.
         s.robot[3].position = [-1.2, 0.0, 0.0];
         assert_eq!(
             measured(&s, &recovering, PLAUSIBLE).unwrap().task,
+            Err(Rejection::at(Reason::StartOutsideWorkspace, 3))
+        );
+        let limited = Team { max_acceleration: Some(3.0), ..recovering.clone() };
+        assert_eq!(measured(&s, &limited, PLAUSIBLE).unwrap().recovering, Some(3));
+        s.robot[3].position = [-4.0, 0.0, 0.0];
+        assert_eq!(
+            measured(&s, &limited, PLAUSIBLE).unwrap().task,
             Err(Rejection::at(Reason::StartOutsideWorkspace, 3))
         );
         let (_, clear) = valid();

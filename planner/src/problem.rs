@@ -28,7 +28,7 @@ use serde::{Deserialize, Serialize};
 use crate::basis::{BOUNDARY_ROWS, Basis, BasisError, DENSE_FACTOR};
 use crate::closing;
 pub use crate::problem_error::{Field, ProblemError};
-pub use crate::start_violation::{Against, BrakingExcess, RECOVERABLE_DEPTH, StartViolation};
+pub use crate::start_violation::{Against, BrakingExcess, RECOVERABLE_DEPTH, RETURN_FACTOR, StartViolation};
 
 /// Relative tolerance on every clearance: a plan is feasible when every
 /// scaled distance is at least `1 - FEASIBILITY_TOLERANCE` (1% of the
@@ -176,9 +176,12 @@ pub struct Team {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub obstacle_prediction: Option<f64>,
     /// Seconds a robot whose measured start violates a constraint
-    /// (in an obstacle; touching another robot or outside the box by at
-    /// most [`RECOVERABLE_DEPTH`]) has to clear it; see
-    /// [`crate::recovery`]. `None`: such starts are rejected.
+    /// (in an obstacle; touching another robot by at most
+    /// [`RECOVERABLE_DEPTH`]; outside the box where
+    /// [`StartViolation::recoverable`]) has to clear it, at the least (a
+    /// robot far out of the box is given longer:
+    /// [`StartViolation::return_time`]); see [`crate::recovery`]. `None`:
+    /// such starts are rejected.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub start_recovery: Option<f64>,
     /// The robots' largest acceleration (m/s^2), if known: a robot inside
@@ -552,7 +555,9 @@ impl Problem {
                 positive(o.shape.half_height, Field::ObstacleSize, m)?;
             }
         }
-        if let Some(v) = self.each_start_violation().find(|v| team.start_recovery.is_none() || !v.recoverable()) {
+        if let Some(v) = self.each_start_violation().find(|v| {
+            team.start_recovery.is_none() || !v.recoverable(team.separation().0, team.horizon, team.max_acceleration)
+        }) {
             return Err(v.error(team.separation().0));
         }
         for (i, g) in self.goals.iter().enumerate() {

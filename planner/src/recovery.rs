@@ -7,11 +7,15 @@
 //! task unplannable, and every robot stops while the one in contact waits
 //! for the contact to go away by itself. With a team's
 //! [`crate::problem::Team::start_recovery`] set, [`Problem::validate`] accepts starts in
-//! an obstacle however deep (a walker is where it is reported) and starts
-//! touching another robot or outside the box by at most
-//! [`crate::problem::RECOVERABLE_DEPTH`] (deeper is more likely a wrong measurement), and every
-//! planner holds that constraint, for that robot (that pair) alone, to a
-//! floor until the recovery time has passed and in full from then on:
+//! an obstacle however deep (a walker is where it is reported), starts
+//! touching another robot by at most [`crate::problem::RECOVERABLE_DEPTH`]
+//! (deeper is more likely a wrong measurement) and starts outside the box
+//! that a plan can bring back within half the horizon
+//! ([`crate::problem::StartViolation::recoverable`]), and every planner
+//! holds that constraint, for that robot (that pair) alone, to a floor
+//! until the recovery time has passed (longer for a robot far out of the
+//! box: [`crate::problem::StartViolation::return_time`]) and in full from
+//! then on:
 //!
 //! - a pair or a robot and an obstacle at measured scaled distance `d0`,
 //!   closing at scaled speed `u`, keep at least
@@ -101,7 +105,9 @@ pub struct Violation {
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct Recovery {
     /// Seconds from the start the floors hold for: the team's
-    /// [`crate::problem::Team::start_recovery`]; without it, the horizon
+    /// [`crate::problem::Team::start_recovery`], or longer where a robot
+    /// outside the box needs longer to come back
+    /// ([`crate::problem::StartViolation::return_time`]); without it, the horizon
     /// where a start's braking takes it past a side within the tolerance,
     /// else 0.
     pub until: f64,
@@ -134,13 +140,29 @@ impl Recovery {
             Violation { robot: e.robot, against, floor, slack: out - e.least }
         });
         let mut tolerated = tolerated.peekable();
-        // Without start recovery those floors hold for the whole plan.
-        let until = team.start_recovery.unwrap_or(if tolerated.peek().is_some() { team.horizon } else { 0.0 });
         let quarter = team.start_recovery.unwrap_or(0.0) / 4.0;
         // Only a team that recovers from its starts has floors for them (in
         // any other, a start violation makes the problem invalid, and its
         // floor must not last the tolerated ones' whole plan).
         let measured = if team.start_recovery.is_some() { problem.start_violations() } else { Vec::new() };
+        // Without start recovery the tolerated floors hold for the whole
+        // plan; with it, until the recovery time, or as long as a robot
+        // far out of the box needs to come back.
+        let until = match team.start_recovery {
+            Some(recovery) => {
+                let back = measured
+                    .iter()
+                    .filter_map(|v| v.return_time(team.separation().0, team.max_acceleration))
+                    .fold(0.0, f64::max);
+                // A longer time ends just before a constrained instant: the
+                // box holds there and at every later one, on the
+                // constraints' grid as on the verification's.
+                let step = team.horizon / (team.samples.max(2) - 1) as f64;
+                if back > recovery { (back / step).ceil() * step - 1e-9 } else { recovery }
+            }
+            None if tolerated.peek().is_some() => team.horizon,
+            None => 0.0,
+        };
         let violations = measured
             .into_iter()
             .map(|v| {
@@ -226,7 +248,7 @@ mod tests {
     use crate::basis::DENSE_FACTOR;
     use crate::metrics::Metrics;
     use crate::plan::JointPlan;
-    use crate::problem::{Dim, FEASIBILITY_TOLERANCE, ProblemError, Team};
+    use crate::problem::{Dim, FEASIBILITY_TOLERANCE, ProblemError, RETURN_FACTOR, Team};
     use crate::problem::{Obstacle, Spheroid, StartState};
 
     /// Four robots at rest in the default 2D box, going to the opposite
@@ -280,6 +302,44 @@ mod tests {
             assert!(x(t) <= 1.0 + FEASIBILITY_TOLERANCE * 0.2, "x({t}) = {}", x(t));
         }
         assert!(Metrics::measure(&strict, &plan).workspace_excess > 0.01, "it did start outside");
+    }
+
+    #[test]
+    fn a_robot_far_out_of_the_box_is_planned_back_in_where_a_plan_can_bring_it() {
+        // Robot 1 pushed 0.3 m (1.5 separations) past the right side, still
+        // moving out at 0.5 m/s.
+        let problem = four(|p| {
+            p.team.max_acceleration = Some(3.0);
+            p.starts[1] = StartState {
+                velocity: Vector3::new(0.5, 0.0, 0.0),
+                ..StartState::at_rest(Vector3::new(1.3, -0.5, 0.0))
+            };
+        });
+        problem.validate().unwrap();
+        // Its floor holds for twice the shortest return (0.5 / 3 s to
+        // brake, then 0.342 m at 3 m/s^2), to the next constrained instant.
+        let recovery = Recovery::of(&problem);
+        let expected = RETURN_FACTOR * (0.5 / 3.0 + 2.0 * ((0.3 + 0.25 / 6.0) / 3.0_f64).sqrt());
+        let step = problem.team.horizon / (problem.team.samples - 1) as f64;
+        assert!(expected > 1.0 && recovery.until >= expected && recovery.until < expected + step, "{recovery:?}");
+        let plan = planned(&problem);
+        let x = |t: f64| plan.at(t)[1].position.x;
+        assert!(x(0.1) > 1.3, "it goes on out first: {}", x(0.1));
+        // Inside from then on, at the verification's instants.
+        let dense = DENSE_FACTOR * problem.team.samples;
+        let instants = (0..dense).map(|j| j as f64 * problem.team.horizon / (dense - 1) as f64);
+        for t in instants.filter(|t| *t >= recovery.until) {
+            assert!(x(t) <= 1.0 + FEASIBILITY_TOLERANCE * 0.2, "x({t}) = {}", x(t));
+        }
+        // Without an acceleration limit the depth rule holds: rejected.
+        let unlimited = Problem { team: Team { max_acceleration: None, ..problem.team.clone() }, ..problem.clone() };
+        assert_eq!(unlimited.validate(), Err(ProblemError::StartOutsideWorkspace(1)));
+        // Too far to come back within half the horizon: rejected.
+        let far = four(|p| {
+            p.team.max_acceleration = Some(3.0);
+            p.starts[1] = StartState::at_rest(Vector3::new(3.0, -0.5, 0.0));
+        });
+        assert_eq!(far.validate(), Err(ProblemError::StartOutsideWorkspace(1)));
     }
 
     #[test]

@@ -1,16 +1,28 @@
 //! What a measured start violates ([`StartViolation`], found by
 //! [`crate::problem::Problem::start_violations`]) and how deep a team that
-//! recovers from its starts accepts it ([`RECOVERABLE_DEPTH`]).
+//! recovers from its starts accepts it ([`RECOVERABLE_DEPTH`],
+//! [`StartViolation::return_time`]).
 
 use crate::problem_error::ProblemError;
 
-/// The deepest overlap of two robots' starts, or start outside the box, a
-/// team with [`crate::problem::Team::start_recovery`] plans from: half a separation
-/// (scaled distance 0.5; half the horizontal separation outside the box).
-/// Robots cannot be that deep in each other, nor that far out of the box,
-/// without a wrong measurement. An obstacle (a walker bumping a robot,
-/// walking on through it) may be reported anywhere.
+/// The deepest overlap of two robots' starts a team with
+/// [`crate::problem::Team::start_recovery`] plans from: half a separation
+/// (scaled distance 0.5). Robots cannot be that deep in each other without
+/// a wrong measurement. Outside the box the same depth (half the
+/// horizontal separation) holds for a team without
+/// [`crate::problem::Team::max_acceleration`]; with it, a robot is planned
+/// back in from wherever a plan can bring it back within half the horizon
+/// ([`StartViolation::return_time`]): a gust pushes a robot out of the box
+/// as far as it likes, and a team that waited for it to come back by
+/// itself stopped for good. An obstacle (a walker bumping a robot, walking
+/// on through it) may be reported anywhere.
 pub const RECOVERABLE_DEPTH: f64 = 0.5;
+
+/// How many times the shortest return into the box at the acceleration
+/// limit (the outward motion braked and the way back covered at full
+/// acceleration and braking) a plan is given for it: plans are
+/// polynomials, not bang-bang.
+pub const RETURN_FACTOR: f64 = 2.0;
 
 /// What a measured start violates.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -99,16 +111,40 @@ pub struct StartViolation {
 }
 
 impl StartViolation {
-    /// Whether a team with [`crate::problem::Team::start_recovery`] plans from it: an
-    /// obstacle at any depth, a robot or the box to [`RECOVERABLE_DEPTH`],
-    /// a robot that cannot stop inside the box however fast (it is
-    /// inside); never a pair that must touch ([`Against::Closing`]).
-    pub fn recoverable(&self) -> bool {
+    /// Whether a team with [`crate::problem::Team::start_recovery`] plans
+    /// from it: an obstacle at any depth, a robot to [`RECOVERABLE_DEPTH`],
+    /// the box where a plan brings the robot back within half the horizon
+    /// ([`Self::return_time`]; to [`RECOVERABLE_DEPTH`] without an
+    /// acceleration limit), a robot that cannot stop inside the box however
+    /// fast (it is inside); never a pair that must touch
+    /// ([`Against::Closing`]). `separation`: the team's horizontal
+    /// separation (the unit of a box depth); `horizon` (s) and
+    /// `max_acceleration`: the team's.
+    pub fn recoverable(&self, separation: f64, horizon: f64, max_acceleration: Option<f64>) -> bool {
         match self.against {
             Against::Obstacle(_) | Against::Braking { .. } => true,
             Against::Closing(_) => false,
-            _ => self.depth <= RECOVERABLE_DEPTH,
+            Against::Box { .. } => self
+                .return_time(separation, max_acceleration)
+                .map_or(self.depth <= RECOVERABLE_DEPTH, |t| t <= horizon / 2.0),
+            Against::Robot(_) => self.depth <= RECOVERABLE_DEPTH,
         }
+    }
+
+    /// For a start outside the box of a team of horizontal `separation`
+    /// with [`crate::problem::Team::max_acceleration`] `a`: the time (s) its plan
+    /// is given to be back inside, [`RETURN_FACTOR`] times the shortest
+    /// return (brake the outward speed `u` in `u / a`, then cover the excess
+    /// `e` and the braking distance `u^2 / 2a` accelerating and braking at
+    /// `a`: `2 sqrt((e + u^2 / 2a) / a)`). `None` for any other violation or
+    /// without the limit.
+    pub fn return_time(&self, separation: f64, max_acceleration: Option<f64>) -> Option<f64> {
+        let a = max_acceleration.filter(|a| *a > 0.0)?;
+        if !matches!(self.against, Against::Box { .. }) {
+            return None;
+        }
+        let (e, u) = (self.depth * separation, self.closing);
+        Some(RETURN_FACTOR * (u / a + 2.0 * ((e + u * u / (2.0 * a)) / a).sqrt()))
     }
 
     /// Its validation error (`separation`: the team's horizontal

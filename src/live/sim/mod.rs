@@ -21,6 +21,7 @@ mod check;
 mod lab;
 mod report;
 mod robots;
+mod stops;
 mod tally;
 mod world;
 
@@ -49,6 +50,7 @@ pub use lab::LabArgs;
 use report::{CONTACTS_LOGGED, ContactEvent};
 pub use report::{FaultReport, SimReport, print_report};
 use robots::{Robots, Touch, Touched};
+use stops::Stops;
 pub use tally::Tally;
 use world::{SimObstacle, World};
 
@@ -318,6 +320,7 @@ fn simulate(args: &SimArgs, config: &DaemonConfig, team_config: &TeamConfig) -> 
     let mut without_since: Option<f64> = None;
     let mut restart_at: Option<f64> = None;
     let mut obstacles_then = Vec::new();
+    let mut stops = Stops::default();
     while started.elapsed().as_secs_f64() < args.seconds {
         // Messages until the next tick.
         loop {
@@ -388,6 +391,9 @@ fn simulate(args: &SimArgs, config: &DaemonConfig, team_config: &TeamConfig) -> 
             tally.motion(motion.closest, motion.contacts(), motion.closest_obstacle, motion.obstacle_contacts());
             tally.workspace_excess_m = tally.workspace_excess_m.max(motion.workspace_excess);
         });
+        if let Some(ended) = stops.tick(t, followed.as_ref(), robots.at_rest(), robots.arrived()) {
+            counters.each(ended.since_s, |tally| tally.stop(&ended));
+        }
         if followed.is_some() && !frozen {
             error_sum += motion.tracking.0;
             error_ticks += 1;
@@ -479,6 +485,9 @@ fn simulate(args: &SimArgs, config: &DaemonConfig, team_config: &TeamConfig) -> 
     let t = started.elapsed().as_secs_f64();
     if let Some(since) = without_since {
         counters.each(since, |tally| tally.without_plan((t - since) * 1e3));
+    }
+    if let Some(ended) = stops.end(t) {
+        counters.each(ended.since_s, |tally| tally.stop(&ended));
     }
     report.seconds = t;
     report.lab = lab.map(|lab| lab.report(t));

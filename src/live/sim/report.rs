@@ -151,6 +151,10 @@ fn print_summary(r: &SimReport) {
     println!("own check        max {:.2} ms", r.check_max_ms);
     println!("answer time      max {:.2} ms, {} after the deadline", t.answer_max_ms, t.late_answers);
     println!("without a plan   longest {:.0} ms", t.longest_without_plan_ms);
+    println!(
+        "stops            {} ({} with the team at rest off its goals), longest {:.0} ms, {:.0} ms in all",
+        t.stops, t.halts, t.longest_stop_ms, t.stopped_ms
+    );
     println!("tracking error   mean {:.4} m, max {:.4} m", r.mean_tracking_error_m, r.max_tracking_error_m);
     println!("goal sets        {} reached", r.goal_sets_reached);
     if let Some(lab) = &r.lab {

@@ -17,10 +17,10 @@ const KP: f64 = 25.0;
 const KD: f64 = 10.0;
 /// Integration substeps per control period (2 ms at 50 Hz).
 pub const SUBSTEPS: usize = 10;
-/// A robot is at its goal within this distance (m) and below `ARRIVED_SPEED`.
+/// A robot is at its goal within this distance (m) and at rest.
 const ARRIVED_DISTANCE: f64 = 0.02;
-/// Speed (m/s) below which an arrived robot counts as stopped.
-const ARRIVED_SPEED: f64 = 0.05;
+/// Speed (m/s) below which a robot is at rest.
+const REST_SPEED: f64 = 0.05;
 /// Standard deviation of the mocap position noise on published states (m).
 const POSITION_NOISE: f64 = 0.001;
 /// Standard deviation of the velocity-estimate noise (m/s).
@@ -272,7 +272,12 @@ impl Robots {
 
     /// Whether robot `i` is at its goal and stopped.
     pub fn at_goal(&self, i: usize) -> bool {
-        (self.position[i] - self.goal[i]).norm() < ARRIVED_DISTANCE && self.velocity[i].norm() < ARRIVED_SPEED
+        (self.position[i] - self.goal[i]).norm() < ARRIVED_DISTANCE && self.velocity[i].norm() < REST_SPEED
+    }
+
+    /// Whether every robot is at rest.
+    pub fn at_rest(&self) -> bool {
+        self.velocity.iter().all(|v| v.norm() < REST_SPEED)
     }
 
     /// The state as the mocap measures it (with noise), with `obstacles`:

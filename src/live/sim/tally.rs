@@ -40,6 +40,16 @@ pub struct Tally {
     pub answer_max_ms: f64,
     /// Longest stretch with no trajectory to follow (ms).
     pub longest_without_plan_ms: f64,
+    /// Stops: stretches off a plan to the goals (on a stopping plan, or
+    /// none), from the first plan on ([`super::stops`]).
+    pub stops: u64,
+    /// Stops in which the whole team came to rest with a robot off its
+    /// goal before the next plan to the goals: the team stalled.
+    pub halts: u64,
+    /// The longest stop (ms).
+    pub longest_stop_ms: f64,
+    /// All stops together (ms).
+    pub stopped_ms: f64,
     /// Bad snapshots injected.
     pub injected: u64,
     /// Injected snapshots whose answer was seen with the expected rejection
@@ -73,6 +83,15 @@ impl Tally {
     pub fn answered_in(&mut self, ms: f64, deadline_ms: f64) {
         self.answer_max_ms = self.answer_max_ms.max(ms);
         self.late_answers += u64::from(ms > deadline_ms);
+    }
+
+    /// Records a stop that ended.
+    pub fn stop(&mut self, ended: &super::stops::Ended) {
+        let ms = ended.lasted_s * 1e3;
+        self.stops += 1;
+        self.halts += u64::from(ended.halted);
+        self.longest_stop_ms = self.longest_stop_ms.max(ms);
+        self.stopped_ms += ms;
     }
 
     /// Records a stretch without a trajectory to follow.
