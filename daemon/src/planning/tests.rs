@@ -400,6 +400,43 @@ fn a_held_plan_an_obstacle_appeared_on_is_replaced_at_once_by_a_verified_stoppin
 }
 
 #[test]
+fn a_team_on_a_stopping_plan_goes_on_from_its_motion_without_coming_to_rest() {
+    // Brake, then go: an obstacle appears on the held plan and nothing
+    // is planned in time, so the robots brake along a stopping plan; the
+    // next snapshot, 0.1 s into it, gets a plan to the goals that starts
+    // where the stopping plan has them, still moving.
+    let config = config(8, "");
+    let mut planner = TeamPlanner::preload(&config).unwrap();
+    let problem = RandomScenario::new(planner.team().clone()).generate(11).unwrap();
+    let mut moved = on_the_plan_after(&mut planner, &problem, 1.0);
+    let (_, ahead) = ahead_of(&planner, 1.0);
+    moved.obstacles.push(obstacle(ahead, Vector3::zeros()));
+    let stop = answer_late(&mut planner, &moved, 2_000_000_000);
+    assert_eq!(stop.follow, Follow::Stopping);
+    let stopping = planner.held().unwrap().plan.clone();
+    let mut braking = moved.clone();
+    for (s, k) in braking.starts.iter_mut().zip(stopping.at(0.1)) {
+        s.position = k.position;
+        s.velocity = k.velocity;
+    }
+    let fastest = braking.starts.iter().map(|s| s.velocity.norm()).fold(0.0, f64::max);
+    assert!(fastest > 0.2, "still moving: {fastest} m/s");
+    // Racers again; the request `answer_late` left with none is dropped.
+    hold_racers(&mut planner, &config, || {});
+    planner.pending = None;
+    let go = answer(&mut planner, &braking, 2_100_000_000, Instant::now());
+    assert_eq!((go.follow, go.why), (Follow::New, Why::None), "{go:?}");
+    let held = planner.held().unwrap();
+    assert_eq!(held.kind, Kind::Goals);
+    for (k, s) in held.plan.at(0.0).iter().zip(&braking.starts) {
+        assert!((k.position - s.position).norm() < 1e-6, "starts where the stopping plan has the robot");
+        assert!((k.velocity - s.velocity).norm() < 1e-6, "at its velocity, not at rest");
+    }
+    assert_verified_from(&planner, &braking);
+    clears(&planner, &braking, 2_100_000_000);
+}
+
+#[test]
 fn a_moving_obstacle_whose_reported_motion_crosses_the_held_plan_is_planned_around_or_stopped_for() {
     let mut planner = TeamPlanner::preload(&config(8, "")).unwrap();
     let problem = RandomScenario::new(planner.team().clone()).generate(12).unwrap();
