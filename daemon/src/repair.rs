@@ -18,6 +18,15 @@ use crate::held::{Candidate, World};
 use crate::planning::TeamPlanner;
 use crate::stops::Stops;
 
+/// How far under the limits a plan stretched in time to keep them is
+/// brought (a share of each): room for the warm replans along it, which
+/// the safety filter repairs without the limits. Stretched to the limits
+/// themselves, the 128-robot team's plans from rest came back from their
+/// warm replans 0.04-0.26% over the speed limit, and 270 of 1,484 answers
+/// in 30 s re-issued the held plan for `Limits`
+/// (docs/experiments/2026-11-29-stretched-plans-with-headroom.md).
+pub const STRETCH_HEADROOM: f64 = 0.02;
+
 impl TeamPlanner {
     /// The safety filter on `sample` shifted by `dt` for `world`: a
     /// verified candidate within the limits, `None` if it did not verify,
@@ -58,7 +67,8 @@ impl TeamPlanner {
 
     /// `plan` if it keeps the team's speed and acceleration limits; else
     /// stretched in time where the problem allows it
-    /// ([`Problem::stretchable`]); else [`Why::Limits`].
+    /// ([`Problem::stretchable`]), [`STRETCH_HEADROOM`] under them; else
+    /// [`Why::Limits`].
     pub(crate) fn within_limits(&self, plan: JointPlan, problem: &Problem) -> Result<JointPlan, Why> {
         let (speed, acceleration) = plan.peak_rates(DENSE_FACTOR * self.team.samples);
         let factor = (speed / self.rules.max_speed).max((acceleration / self.rules.max_acceleration).sqrt());
@@ -66,7 +76,7 @@ impl TeamPlanner {
             return Ok(plan);
         }
         if problem.stretchable() && factor.is_finite() {
-            Ok(plan.stretched(factor * (1.0 + 1e-6)))
+            Ok(plan.stretched(factor * (1.0 + STRETCH_HEADROOM)))
         } else {
             debug!(speed, acceleration, "a plan over the limits");
             Err(Why::Limits)

@@ -201,6 +201,10 @@ fn plans_keep_the_limits_stretched_from_rest() {
     let (speed, acceleration) = held.plan.peak_rates(4 * planner.team().samples);
     assert!(speed <= 0.1 && acceleration <= 0.2, "{speed} {acceleration}");
     assert!(held.plan.horizon > planner.team().horizon, "stretched: {}", held.plan.horizon);
+    // To the headroom under the limits, no further.
+    let room = 1.0 + crate::repair::STRETCH_HEADROOM;
+    let tight = (speed * room / 0.1).max((acceleration / 0.2).sqrt() * room);
+    assert!((tight - 1.0).abs() < 1e-6, "stretched to the headroom under the limits: {tight}");
     assert_verified_from(&planner, &problem);
     // From a moving start a plan cannot be stretched: one over the
     // limits is refused, never published.
