@@ -352,7 +352,12 @@ fn a_robot_knocked_off_the_plan_is_replanned_from_its_measurement_and_the_rest_f
 fn on_the_plan_after(planner: &mut TeamPlanner, problem: &Problem, t: f64) -> Problem {
     let first = answer(planner, problem, 1_000_000_000, Instant::now());
     assert_eq!(first.follow, Follow::New);
-    let plan = planner.held().unwrap().plan.clone();
+    on(problem, &planner.held().unwrap().plan, t)
+}
+
+/// `problem` with the robots where `plan` has them `t` s in, at its
+/// velocities.
+fn on(problem: &Problem, plan: &JointPlan, t: f64) -> Problem {
     let mut moved = problem.clone();
     for (s, k) in moved.starts.iter_mut().zip(plan.at(t)) {
         s.position = k.position;
@@ -417,12 +422,7 @@ fn a_team_on_a_stopping_plan_goes_on_from_its_motion_without_coming_to_rest() {
     moved.obstacles.push(obstacle(ahead, Vector3::zeros()));
     let stop = answer_late(&mut planner, &moved, 2_000_000_000);
     assert_eq!(stop.follow, Follow::Stopping);
-    let stopping = planner.held().unwrap().plan.clone();
-    let mut braking = moved.clone();
-    for (s, k) in braking.starts.iter_mut().zip(stopping.at(0.1)) {
-        s.position = k.position;
-        s.velocity = k.velocity;
-    }
+    let braking = on(&moved, &planner.held().unwrap().plan, 0.1);
     let fastest = braking.starts.iter().map(|s| s.velocity.norm()).fold(0.0, f64::max);
     assert!(fastest > 0.2, "still moving: {fastest} m/s");
     // Racers again; the request `answer_late` left with none is dropped.
