@@ -332,6 +332,7 @@ impl TeamConfig {
             obstacle_prediction: Some(self.obstacle_prediction_s),
             start_recovery: (self.start_recovery_s > 0.0).then_some(self.start_recovery_s),
             max_acceleration: Some(self.max_acceleration),
+            max_speed: Some(self.max_speed),
             ..team
         })
     }

@@ -131,6 +131,9 @@ pub struct TeamPlanner {
     pub(crate) rules: Rules,
     /// Warm-start safety filters, one per obstacle count.
     pub(crate) filters: EngineSet,
+    /// The same holding the speed and acceleration limits in their
+    /// iteration: they repair a warm plan the filters left over them.
+    pub(crate) limited_filters: EngineSet,
     /// Stopping plans' engines, one set per horizon, in the order tried.
     pub(crate) stops: Vec<Stops>,
     pub(crate) fitter: Fitter,

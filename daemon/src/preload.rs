@@ -76,6 +76,15 @@ impl TeamPlanner {
         let filter_settings =
             buffered(AmSettings { max_iterations: WARM_ITERATIONS, threads, ..AmSettings::safety_filter() }, buffer);
         let filters = EngineSet::preloaded(&team, Objective::Projection, filter_settings, max)?;
+        // Warm replans that come out over the limits go on in filters that
+        // hold them (along a chain of repairs plans crept past the speed
+        // limit: at 128 robots 262-335 answers a minute re-issued the held
+        // plan in four runs of five;
+        // docs/experiments/2026-11-29-speed-limit-in-warm-replans.md). The
+        // limits' rows slow every iteration (they hold each step near the
+        // last along them), so only those.
+        let limited_settings = AmSettings { limit_speed: true, limit_acceleration: true, ..filter_settings };
+        let limited_filters = EngineSet::preloaded(&team, Objective::Projection, limited_settings, max)?;
         // Stopping plans, the last resort before none, are verified at the
         // true sizes: robots a jam has left within the buffer of each other
         // are then still held apart under control instead of braking on
@@ -138,6 +147,7 @@ impl TeamPlanner {
                 check_window,
             },
             filters,
+            limited_filters,
             stops,
             fitter,
             cold,

@@ -1,12 +1,13 @@
 //! The repairs the policy makes plans with: the safety filter on a sample
 //! shifted to the newest state ([`TeamPlanner::refine`]: a warm start, or a
-//! cold plan the robots left), a stopping plan from the newest state
+//! cold plan the robots left; run on by a filter that holds the limits where
+//! it came out over them), a stopping plan from the newest state
 //! ([`TeamPlanner::stopping`]), and the speed and acceleration limits every
 //! plan keeps ([`TeamPlanner::within_limits`]).
 
 use std::time::Instant;
 
-use flowopt_planner::am::{AmSettings, Budget, Stop};
+use flowopt_planner::am::{AmSettings, AmState, Budget, Stop};
 use flowopt_planner::metrics::DENSE_FACTOR;
 use flowopt_planner::plan::JointPlan;
 use flowopt_planner::problem::Problem;
@@ -20,7 +21,8 @@ use crate::stops::Stops;
 
 /// How far under the limits a plan stretched in time to keep them is
 /// brought (a share of each): room for the warm replans along it, which
-/// the safety filter repairs without the limits. Stretched to the limits
+/// the safety filter repairs without the limits (those that come out over
+/// them are run on by the one that holds them: [`TeamPlanner::refine`]). Stretched to the limits
 /// themselves, the 128-robot team's plans from rest came back from their
 /// warm replans 0.04-0.26% over the speed limit, and 270 of 1,484 answers
 /// in 30 s re-issued the held plan for `Limits`
@@ -60,9 +62,39 @@ impl TeamPlanner {
             debug!(stop = ?outcome.stop, iterations = outcome.iterations, primal = outcome.primal, "a repair not verified");
             return Ok(None);
         }
-        let plan = self.within_limits(engine.plan(outcome.state.xi), &start)?;
+        let (plan, primal) = match self.within_limits(engine.plan(outcome.state.xi.clone()), &start) {
+            Ok(plan) => (plan, outcome.primal),
+            Err(Why::Limits) => self.repaired_within_limits(&start, &xi, outcome.state, until, answer)?,
+            Err(why) => return Err(why),
+        };
         let (origin_ns, sequence) = (world.origin_ns, world.sequence);
-        Ok(Some(Candidate { plan, problem: start, origin_ns, sequence, primal: outcome.primal }))
+        Ok(Some(Candidate { plan, problem: start, origin_ns, sequence, primal }))
+    }
+
+    /// A warm replan of `problem` (`state`, from the sample `xi`), verified
+    /// but over the limits, run on by the filter that holds them until
+    /// `until`: the plan and its primal residual, or [`Why::Limits`].
+    fn repaired_within_limits(
+        &self,
+        problem: &Problem,
+        xi: &[f64],
+        state: AmState,
+        until: Instant,
+        answer: &mut Answer,
+    ) -> Result<(JointPlan, f64), Why> {
+        let t = Instant::now();
+        let _span = info_span!("within_limits").entered();
+        let engine = self.limited_filters.get(problem.obstacles.len()).ok_or(Why::Limits)?;
+        let prepared = engine.prepare(problem, Some(xi)).map_err(|_| Why::Limits)?;
+        let outcome = engine.run_within(&prepared, state, &Budget::until(until));
+        answer.stages.filter += t.elapsed();
+        answer.iterations += outcome.iterations;
+        if outcome.stop != Stop::Verified {
+            debug!(stop = ?outcome.stop, iterations = outcome.iterations, "a plan over the limits not repaired");
+            return Err(Why::Limits);
+        }
+        debug!(iterations = outcome.iterations, "a plan over the limits repaired within them");
+        Ok((self.within_limits(engine.plan(outcome.state.xi), problem)?, outcome.primal))
     }
 
     /// `plan` if it keeps the team's speed and acceleration limits; else
@@ -133,5 +165,57 @@ impl TeamPlanner {
         debug!(iterations = outcome.iterations, "a stopping plan");
         let (origin_ns, sequence) = (world.origin_ns, world.sequence);
         Some(Candidate { plan, problem: stop, origin_ns, sequence, primal: outcome.primal })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::time::Duration;
+
+    use flowopt_planner::am::{Engine, Objective};
+    use flowopt_planner::scenario::RandomScenario;
+
+    use super::*;
+    use crate::answer::Follow;
+    use crate::config::TeamConfig;
+    use crate::held::World;
+
+    fn preload(max_speed: f64) -> TeamPlanner {
+        let text = format!(
+            "name = \"t\"\ndim = 2\nrobots = 4\nrobot = {{ radius = 0.1 }}\n\
+             workspace = {{ min = [-1.0, -1.0], max = [1.0, 1.0] }}\nmax_obstacles = 0\n\
+             max_speed = {max_speed}\nmax_acceleration = 100.0\n"
+        );
+        TeamPlanner::preload(&toml::from_str::<TeamConfig>(&text).unwrap()).unwrap()
+    }
+
+    #[test]
+    fn a_warm_replan_over_the_speed_limit_is_run_on_within_it() {
+        // Robots in motion, and the optimiser's plan from there: not
+        // stretchable, and over a limit 3% under its top speed.
+        let team = preload(1.5).team().clone();
+        let problem = RandomScenario::new(team.clone()).with_start_speed(0.1).generate(5).unwrap();
+        let optimiser = Engine::new(&team, 0, Objective::smoothness(), AmSettings::optimiser()).unwrap();
+        let free = optimiser.solve(&problem).unwrap().state.xi;
+        let samples = DENSE_FACTOR * team.samples;
+        let limit = 0.97 * JointPlan::new(&team, free.clone()).peak_rates(samples).0;
+        assert!(limit > 0.15, "well over the starts' speeds: {limit}");
+        let planner = preload(limit);
+        let problem = Problem { team: planner.team().clone(), ..problem };
+        let sample = JointPlan::new(planner.team(), free.clone());
+        // The filter alone leaves the plan (verified) as it is: over the limit.
+        let engine = planner.filters.get(0).unwrap();
+        let prepared = engine.prepare(&problem, Some(&free)).unwrap();
+        let outcome = engine.run(&prepared, engine.cold_start(&prepared));
+        assert_eq!(outcome.stop, Stop::Verified);
+        assert!(JointPlan::new(planner.team(), outcome.state.xi).peak_rates(samples).0 > limit);
+        // The warm replan goes on within it.
+        let world = World { problem, origin_ns: 1, sequence: 1 };
+        let mut answer = Answer::new(Follow::Nothing, Why::None);
+        let until = Instant::now() + Duration::from_secs(10);
+        let candidate = planner.refine(&sample, 0.0, &world, until, &mut answer).unwrap().expect("verified");
+        let (speed, acceleration) = candidate.plan.peak_rates(samples);
+        assert!(speed <= limit && acceleration <= 100.0, "{speed} over {limit}");
+        assert_eq!(candidate.plan.horizon, planner.team().horizon, "not stretched");
     }
 }

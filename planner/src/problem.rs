@@ -194,6 +194,11 @@ pub struct Team {
     /// `None`: no such check.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub max_acceleration: Option<f64>,
+    /// The robots' top speed (m/s), if known: kept by engines that hold it
+    /// in their iteration ([`crate::am::AmSettings::limit_speed`]). `None`:
+    /// plans are checked against a speed limit, if any, after the fact.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub max_speed: Option<f64>,
 }
 
 impl Team {
@@ -226,6 +231,7 @@ impl Team {
             obstacle_prediction: None,
             start_recovery: None,
             max_acceleration: None,
+            max_speed: None,
         }
     }
 
@@ -351,6 +357,9 @@ impl Team {
         }
         if let Some(a) = self.max_acceleration {
             positive(a, Field::MaxAcceleration, 0)?;
+        }
+        if let Some(v) = self.max_speed {
+            positive(v, Field::MaxSpeed, 0)?;
         }
         for a in 0..self.dim.axes() {
             finite(self.workspace.min[a], Field::Workspace, 0)?;

@@ -35,6 +35,8 @@ pub enum Field {
     StartRecovery,
     /// The robots' largest acceleration.
     MaxAcceleration,
+    /// The robots' top speed.
+    MaxSpeed,
 }
 
 /// Why a problem is not plannable.

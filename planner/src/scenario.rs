@@ -398,6 +398,7 @@ pub fn file_team(
         obstacle_prediction: None,
         start_recovery: None,
         max_acceleration: None,
+        max_speed: None,
     })
 }
 

@@ -4,8 +4,8 @@
 
 use thiserror::Error;
 
-use super::acceleration::AccelerationLimit;
 use super::projection::SampleGrid;
+use super::rates::RateLimits;
 use super::settings::{AmSettings, Stop};
 use crate::basis::Basis;
 use crate::kkt::{KktError, TeamKkt};
@@ -23,8 +23,8 @@ pub const FIRST_CONSTRAINED_SAMPLE: usize = 1;
 /// start may be in near-contact, keeps no instant).
 pub const START_INTERVALS: usize = 2;
 
-/// The acceleration limit's instants before the first constrained one:
-/// that interval cut into this many.
+/// The rate limits' instants before the first constrained one: that
+/// interval cut into this many.
 const START_CUTS: usize = 4;
 
 /// The most parts [`AmSettings::start_refine`] cuts an interval into.
@@ -139,8 +139,8 @@ pub(super) struct Level {
     pub(super) mean_minus_diff: Vec<f64>,
     /// `rho P^T P` over the constrained samples.
     pub(super) rho_gram: Vec<f64>,
-    /// `rho w D^T D` of the acceleration limit (empty without it).
-    pub(super) rho_acceleration: Vec<f64>,
+    /// `rho w D^T D` of the rate limits (empty without them).
+    pub(super) rho_rates: Vec<f64>,
 }
 
 /// The engine for one team shape, obstacle count and objective: holds the
@@ -171,9 +171,10 @@ pub struct Engine {
     pub(super) boundary_rows: Vec<f64>,
     /// The per-robot cost Hessian `C`, `n_xi x n_xi`.
     pub(super) cost: Vec<f64>,
-    /// The acceleration limit ([`AmSettings::limit_acceleration`] and the
-    /// team's `max_acceleration`).
-    pub(super) acceleration: Option<AccelerationLimit>,
+    /// The speed and acceleration limits ([`AmSettings::limit_speed`],
+    /// [`AmSettings::limit_acceleration`], and the team's `max_speed` and
+    /// `max_acceleration`).
+    pub(super) rates: Option<RateLimits>,
 }
 
 impl Engine {
@@ -207,40 +208,31 @@ impl Engine {
             Objective::SmoothProjection { weight } => identity.zip(smoothness(weight)).map(|(i, q)| i + q).collect(),
             Objective::Smoothness { weight } => smoothness(weight).collect(),
         };
-        let acceleration = settings
-            .limit_acceleration
-            .then(|| {
-                let dense_taus: Vec<f64> = dense_start.taus.iter().chain(&dense.taus).copied().collect();
-                // The constrained instants, and cuts of the interval before
-                // the first (the acceleration there is free of the start's).
-                let first = grid.taus.first().copied().unwrap_or(1.0);
-                let cuts = (1..START_CUTS).map(|j| first * j as f64 / START_CUTS as f64);
-                let taus: Vec<f64> = cuts.chain(grid.taus.iter().copied()).collect();
-                AccelerationLimit::new(team, &taus, &dense_taus)
-            })
-            .flatten();
-        let acceleration_gram = acceleration.as_ref().map(AccelerationLimit::gram);
+        let rates = {
+            let dense_taus: Vec<f64> = dense_start.taus.iter().chain(&dense.taus).copied().collect();
+            // The constrained instants, and cuts of the interval before
+            // the first (the rates there are free of the start's).
+            let first = grid.taus.first().copied().unwrap_or(1.0);
+            let cuts = (1..START_CUTS).map(|j| first * j as f64 / START_CUTS as f64);
+            let taus: Vec<f64> = cuts.chain(grid.taus.iter().copied()).collect();
+            RateLimits::new(team, (settings.limit_speed, settings.limit_acceleration), &taus, &dense_taus)
+        };
+        let rates_gram = rates.as_ref().map(RateLimits::gram);
         let levels = settings
             .rho
             .levels()
             .into_iter()
             .map(|rho| {
-                // The acceleration rows join the cost Hessian of both systems.
-                let rho_acceleration: Vec<f64> = acceleration_gram.iter().flatten().map(|g| rho * g).collect();
-                let level_cost: Vec<f64> = if rho_acceleration.is_empty() {
+                // The rate rows join the cost Hessian of both systems.
+                let rho_rates: Vec<f64> = rates_gram.iter().flatten().map(|g| rho * g).collect();
+                let level_cost: Vec<f64> = if rho_rates.is_empty() {
                     cost.clone()
                 } else {
-                    cost.iter().zip(&rho_acceleration).map(|(c, a)| c + a).collect()
+                    cost.iter().zip(&rho_rates).map(|(c, a)| c + a).collect()
                 };
                 let kkt = TeamKkt::new(&level_cost, &gram, &boundary, team.robots, obstacles, rho)?;
                 let mean_minus_diff = kkt.mean().k11().iter().zip(kkt.diff().k11()).map(|(m, d)| m - d).collect();
-                Ok(Level {
-                    rho,
-                    kkt,
-                    mean_minus_diff,
-                    rho_gram: gram.iter().map(|g| rho * g).collect(),
-                    rho_acceleration,
-                })
+                Ok(Level { rho, kkt, mean_minus_diff, rho_gram: gram.iter().map(|g| rho * g).collect(), rho_rates })
             })
             .collect::<Result<Vec<_>, KktError>>()?;
         let reference = SmoothReference::new(team).map_err(|e| match e {
@@ -263,7 +255,7 @@ impl Engine {
             fitter,
             boundary_rows: boundary,
             cost,
-            acceleration,
+            rates,
         })
     }
 

@@ -32,12 +32,12 @@
 //! assert_ne!(outcome.stop, Stop::IterationCap);
 //! ```
 
-mod acceleration;
 mod engine;
 mod pairs;
 mod passages;
 mod prepare;
 mod projection;
+mod rates;
 mod recheck;
 mod run;
 mod set;

@@ -224,7 +224,7 @@ impl Engine {
         let (mut lowest, mut progressed) = (f64::INFINITY, 0);
         loop {
             let primal = projection.run(crew, dim, n, &self.grid, &prepared.constraint, &state.xi)
-                + self.acceleration_step(&state.xi, &mut work);
+                + self.rates_step(&state.xi, &mut work);
             if primal < (1.0 - STALL_PROGRESS) * lowest {
                 (lowest, progressed) = (primal, iterations);
             }
@@ -267,12 +267,11 @@ impl Engine {
     /// The primal residual of `xi` (inflated sizes, constrained samples).
     pub fn primal_residual(&self, prepared: &Prepared, xi: &[f64]) -> f64 {
         let (dim, n) = (self.team.dim, self.team.robots);
-        let acceleration = self
-            .acceleration
+        let rates = self
+            .rates
             .as_ref()
-            .map_or(0.0, |limit| limit.correct(dim.axes(), n, xi, &mut vec![0.0; self.coeff_len()]));
-        Projection::new(dim, n, &self.grid).run(&Crew::alone(), dim, n, &self.grid, &prepared.constraint, xi)
-            + acceleration
+            .map_or(0.0, |limits| limits.correct(dim.axes(), n, xi, &mut vec![0.0; self.coeff_len()]));
+        Projection::new(dim, n, &self.grid).run(&Crew::alone(), dim, n, &self.grid, &prepared.constraint, xi) + rates
     }
 
     /// Whether `xi` keeps the true sizes and box on the dense grid: no
@@ -293,7 +292,7 @@ impl Engine {
         };
         clear(&mut verifier.start, &self.dense_start, &prepared.verify_start)
             && clear(&mut verifier.dense, &self.dense, &prepared.verify)
-            && self.acceleration.as_ref().is_none_or(|a| a.within(dim.axes(), n, xi))
+            && self.rates.as_ref().is_none_or(|r| r.within(dim.axes(), n, xi))
     }
 }
 

@@ -155,11 +155,16 @@ pub struct AmSettings {
     pub threads: usize,
     /// Keep each robot's acceleration within the team's `max_acceleration`
     /// (where it has one) at every constrained instant, and verify it on
-    /// the dense grid after the start ([`super::acceleration`]; a run that
-    /// does not verify, `verify_every` 0, only keeps it to its tolerance);
+    /// the dense grid after the start ([`super::rates`]; a run that does
+    /// not verify, `verify_every` 0, only keeps it to its tolerance);
     /// `false`: plans are checked against the limit after the fact.
     #[serde(default)]
     pub limit_acceleration: bool,
+    /// Keep each robot's speed within the team's `max_speed` (where it has
+    /// one) in the same way as [`Self::limit_acceleration`] keeps its
+    /// acceleration.
+    #[serde(default)]
+    pub limit_speed: bool,
 }
 
 impl AmSettings {
@@ -194,6 +199,7 @@ impl AmSettings {
             start_refine: 4,
             threads: 0,
             limit_acceleration: false,
+            limit_speed: false,
         }
     }
 
@@ -223,6 +229,7 @@ impl AmSettings {
             start_refine: 1,
             threads: 0,
             limit_acceleration: false,
+            limit_speed: false,
         }
     }
 

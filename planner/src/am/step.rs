@@ -52,7 +52,7 @@ impl Stepper<'_> {
         let (dim, n) = (e.team.dim, e.team.robots);
         let crew = Crew::alone();
         let primal = self.projection.run(&crew, dim, n, &e.grid, &prepared.constraint, &state.xi)
-            + e.acceleration_step(&state.xi, &mut self.work);
+            + e.rates_step(&state.xi, &mut self.work);
         let level = level.min(e.levels.len() - 1);
         let fixed_point = e.update(&crew, prepared, state, level, &self.projection, &mut self.work);
         Residuals { primal, fixed_point }
@@ -72,9 +72,9 @@ pub(super) struct Work {
     shift: Vec<f64>,
     block_sq: Vec<f64>,
     block_sums: Vec<f64>,
-    /// The acceleration limit's corrections mapped to coefficients,
-    /// `[axis][robot][coef]` (empty without the limit).
-    acceleration: Vec<f64>,
+    /// The rate limits' corrections mapped to coefficients,
+    /// `[axis][robot][coef]` (empty without them).
+    rates: Vec<f64>,
 }
 
 impl Engine {
@@ -86,12 +86,13 @@ impl Engine {
     }
 
     /// The linear pieces of an iteration at penalty level `level` (clamped
-    /// to the schedule), of an engine without the acceleration limit
-    /// ([`super::AmSettings::limit_acceleration`]) only: with it, `K11`
+    /// to the schedule), of an engine without rate limits
+    /// ([`super::AmSettings::limit_speed`],
+    /// [`super::AmSettings::limit_acceleration`]) only: with them, `K11`
     /// (and the prepared boundary part) include `rho w D^T D` while the
-    /// limit's multiplier and right-hand-side terms are not among these.
+    /// limits' multiplier and right-hand-side terms are not among these.
     pub fn step_operators(&self, level: usize) -> StepOperators {
-        debug_assert!(self.acceleration.is_none(), "the unrolled iteration has no acceleration rows");
+        debug_assert!(self.rates.is_none(), "the unrolled iteration has no rate rows");
         let lv = &self.levels[level.min(self.levels.len() - 1)];
         StepOperators {
             rho: lv.rho,
@@ -128,16 +129,16 @@ impl Engine {
             shift: vec![0.0; axes],
             block_sq: vec![0.0; blocks],
             block_sums: vec![0.0; blocks * 2 * axes],
-            acceleration: if self.acceleration.is_some() { vec![0.0; len] } else { Vec::new() },
+            rates: if self.rates.is_some() { vec![0.0; len] } else { Vec::new() },
         }
     }
 
-    /// The acceleration limit's corrections of `xi` into `w` (nothing
-    /// without the limit): their residual, added to the primal one.
-    pub(super) fn acceleration_step(&self, xi: &[f64], w: &mut Work) -> f64 {
-        self.acceleration
+    /// The rate limits' corrections of `xi` into `w` (nothing without
+    /// them): their residual, added to the primal one.
+    pub(super) fn rates_step(&self, xi: &[f64], w: &mut Work) -> f64 {
+        self.rates
             .as_ref()
-            .map_or(0.0, |limit| limit.correct(self.team.dim.axes(), self.team.robots, xi, &mut w.acceleration))
+            .map_or(0.0, |limits| limits.correct(self.team.dim.axes(), self.team.robots, xi, &mut w.rates))
     }
 
     /// Multiplier update and xi-step from the corrections of `projection`
@@ -175,8 +176,8 @@ impl Engine {
         let target = &prepared.target;
         let xi = &state.xi;
         {
-            let Work { u, rhs, block_sq, block_sums, acceleration, .. } = &mut *w;
-            let acceleration = &*acceleration;
+            let Work { u, rhs, block_sq, block_sums, rates, .. } = &mut *w;
+            let rates = &*rates;
             let (lambda, u, rhs, block_sq, block_sums) = (
                 Disjoint::new(&mut state.lambda),
                 Disjoint::new(u),
@@ -195,17 +196,17 @@ impl Engine {
                     // SAFETY: each block's rows belong to one part.
                     let (lambda, u, rhs) =
                         unsafe { (lambda.range(rows.clone()), u.range(rows.clone()), rhs.range(rows.clone())) };
-                    if acceleration.is_empty() {
+                    if rates.is_empty() {
                         for (l, g) in lambda.iter_mut().zip(&g[rows.clone()]) {
                             let d = rho * g;
                             *l += d;
                             lambda_sq += d * d;
                         }
                     } else {
-                        // The acceleration rows' corrections, `w D^T c`,
-                        // enter like the positions' (the multiplier here,
-                        // the right-hand side below).
-                        let moves = g[rows.clone()].iter().zip(&acceleration[rows.clone()]);
+                        // The rate rows' corrections, `w D^T c`, enter
+                        // like the positions' (the multiplier here, the
+                        // right-hand side below).
+                        let moves = g[rows.clone()].iter().zip(&rates[rows.clone()]);
                         for (l, (g, c)) in lambda.iter_mut().zip(moves) {
                             let (d, e) = (rho * g, rho * c);
                             *l += d;
@@ -231,12 +232,12 @@ impl Engine {
                         moves.zip(&target[rows.clone()]).for_each(|(((r, g), l), t)| *r = t + rho * g + l);
                     }
                     gemm(rhs, u, &lv.rho_gram, robots.len(), nx, nx, Accum::Add);
-                    if !acceleration.is_empty() {
+                    if !rates.is_empty() {
                         // rho w D^T e = rho w D^T D xi + rho w D^T c.
-                        for (r, c) in rhs.iter_mut().zip(&acceleration[rows.clone()]) {
+                        for (r, c) in rhs.iter_mut().zip(&rates[rows.clone()]) {
                             *r += rho * c;
                         }
-                        gemm(rhs, &xi[rows], &lv.rho_acceleration, robots.len(), nx, nx, Accum::Add);
+                        gemm(rhs, &xi[rows], &lv.rho_rates, robots.len(), nx, nx, Accum::Add);
                     }
                     let rhs_sum = &mut rhs_sums[ax * nx..(ax + 1) * nx];
                     rhs_sum.fill(0.0);
