@@ -19,13 +19,23 @@ use crate::held::{Candidate, World};
 use crate::planning::TeamPlanner;
 use crate::stops::Stops;
 
+/// A plan's peak speed (m/s) and acceleration (m/s^2), and the factor a
+/// stretch in time takes to bring them within the limits (1 or less:
+/// within them).
+#[derive(Debug, Clone, Copy)]
+struct Peaks {
+    speed: f64,
+    acceleration: f64,
+    factor: f64,
+}
+
 /// How far under the limits a plan stretched in time to keep them is
 /// brought (a share of each): room for the warm replans along it, which
 /// the safety filter repairs without the limits (those that come out over
-/// them are run on by the one that holds them: [`TeamPlanner::refine`]). Stretched to the limits
-/// themselves, the 128-robot team's plans from rest came back from their
-/// warm replans 0.04-0.26% over the speed limit, and 270 of 1,484 answers
-/// in 30 s re-issued the held plan for `Limits`
+/// them are run on by one that holds them: [`TeamPlanner::refine`]).
+/// Stretched to the limits themselves, the 128-robot team's plans from
+/// rest came back from their warm replans 0.04-0.26% over the speed limit,
+/// and 270 of 1,484 answers in 30 s re-issued the held plan for `Limits`
 /// (docs/experiments/2026-11-29-stretched-plans-with-headroom.md).
 pub const STRETCH_HEADROOM: f64 = 0.02;
 
@@ -62,10 +72,13 @@ impl TeamPlanner {
             debug!(stop = ?outcome.stop, iterations = outcome.iterations, primal = outcome.primal, "a repair not verified");
             return Ok(None);
         }
-        let (plan, primal) = match self.within_limits(engine.plan(outcome.state.xi.clone()), &start) {
-            Ok(plan) => (plan, outcome.primal),
-            Err(Why::Limits) => self.repaired_within_limits(&start, &xi, outcome.state, until, answer)?,
-            Err(why) => return Err(why),
+        let plan = engine.plan(outcome.state.xi);
+        let peaks = self.peaks(&plan);
+        let (plan, primal) = if peaks.factor > 1.0 && !start.stretchable() {
+            let state = AmState { xi: plan.coeffs, lambda: outcome.state.lambda };
+            self.repaired_within_limits(&start, &xi, state, until, answer)?
+        } else {
+            (self.kept_within(plan, peaks, &start)?, outcome.primal)
         };
         let (origin_ns, sequence) = (world.origin_ns, world.sequence);
         Ok(Some(Candidate { plan, problem: start, origin_ns, sequence, primal }))
@@ -102,8 +115,20 @@ impl TeamPlanner {
     /// ([`Problem::stretchable`]), [`STRETCH_HEADROOM`] under them; else
     /// [`Why::Limits`].
     pub(crate) fn within_limits(&self, plan: JointPlan, problem: &Problem) -> Result<JointPlan, Why> {
+        let peaks = self.peaks(&plan);
+        self.kept_within(plan, peaks, problem)
+    }
+
+    /// `plan`'s peak speed and acceleration against the team's limits.
+    fn peaks(&self, plan: &JointPlan) -> Peaks {
         let (speed, acceleration) = plan.peak_rates(DENSE_FACTOR * self.team.samples);
         let factor = (speed / self.rules.max_speed).max((acceleration / self.rules.max_acceleration).sqrt());
+        Peaks { speed, acceleration, factor }
+    }
+
+    /// [`Self::within_limits`] for `plan` with its `peaks`.
+    fn kept_within(&self, plan: JointPlan, peaks: Peaks, problem: &Problem) -> Result<JointPlan, Why> {
+        let Peaks { speed, acceleration, factor } = peaks;
         if factor <= 1.0 {
             return Ok(plan);
         }

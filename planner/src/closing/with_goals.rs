@@ -4,6 +4,8 @@
 //! their goals, from each robot's reach along the directions of a frame
 //! ([`Reach`]; docs/ENGINE.md, "With the plans' form").
 
+use std::f64::consts::FRAC_1_SQRT_2;
+
 use nalgebra::Vector3;
 
 use super::unavoidable;
@@ -70,9 +72,12 @@ impl Problem {
     /// reach along each of its directions, [`Reach`], its acceleration held
     /// within the limit along each, which holds it within the limit in all);
     /// the search starts at the instant nearest `around` (where the ball bound
-    /// is least) and walks while that falls. `None`: no such instant found, or
-    /// a program that did not solve (no claim). The last 256 answers are kept
-    /// (a problem is validated more than once).
+    /// is least) and walks while that falls. Where the box leaves the pair
+    /// just apart (`POLYGON_WITHIN`), its horizontal corner is cut by the
+    /// slabs along the diagonals of the frame's first two directions, at the
+    /// instant found (`farthest_in_slabs`). `None`: no such instant found,
+    /// or a program that did not solve (no claim). The last 256 answers are
+    /// kept (a problem is validated more than once).
     pub fn kept_with_goals(
         &self,
         (i, j): (usize, usize),
@@ -83,10 +88,14 @@ impl Problem {
     ) -> Option<(f64, f64)> {
         let team = &self.team;
         let form = team.form(max_acceleration);
-        let axes = team.dim.axes();
-        // Per direction of the frame, the two robots' motions along it.
+        // The frame's directions (the box), then the diagonals of its
+        // horizontal two (the polygon); per direction, the two robots'
+        // motions along it.
+        let (along, across) = (frame[0], frame[1]);
+        let diagonals = [(along + across) * FRAC_1_SQRT_2, (along - across) * FRAC_1_SQRT_2];
+        let directions: Vec<Vector3<f64>> = frame[..team.dim.axes()].iter().chain(&diagonals).copied().collect();
         let motions: Vec<[AxisMotion; 2]> =
-            frame[..axes].iter().map(|d| [self.motion_along(i, d), self.motion_along(j, d)]).collect();
+            directions.iter().map(|d| [self.motion_along(i, d), self.motion_along(j, d)]).collect();
         let mut key: Vec<u64> = [from, to, around, touching].iter().map(|v| v.to_bits()).collect();
         key.extend(motions.iter().flatten().flat_map(|m| form.bits_with(*m)));
         KEPT.get_or(key, || {
@@ -97,21 +106,33 @@ impl Problem {
             if first > end {
                 return None;
             }
-            let mut reaches = Vec::with_capacity(axes);
+            let mut reaches = Vec::with_capacity(motions.len());
             for [mi, mj] in &motions {
                 reaches.push([Reach::new(form, *mi)?, Reach::new(form, *mj)?]);
             }
-            let mut kept_at = |s: usize| -> Option<f64> {
+            let axes = team.dim.axes();
+            let normals: Vec<[f64; 2]> = [along, across].iter().chain(&diagonals).map(|d| [d.x, d.y]).collect();
+            // The offset's range along each direction at dense instant `s`:
+            // the frame's, and the diagonals' too with `polygon`.
+            let mut slabs_at = |s: usize, polygon: bool| -> Option<Vec<(f64, f64)>> {
                 let tau = s as f64 / last as f64;
-                let mut corner = Vector3::zeros();
-                for (axis, [ri, rj]) in reaches.iter_mut().enumerate() {
+                let count = if polygon { reaches.len() } else { axes };
+                let mut slabs = Vec::with_capacity(count);
+                for [ri, rj] in &mut reaches[..count] {
                     let ((lo_i, hi_i), (lo_j, hi_j)) = (ri.at(tau)?, rj.at(tau)?);
-                    corner[axis] = (lo_i - hi_j).abs().max((hi_i - lo_j).abs());
+                    slabs.push((lo_i - hi_j, hi_i - lo_j));
                 }
+                Some(slabs)
+            };
+            let reach = |(lo, hi): (f64, f64)| lo.abs().max(hi.abs());
+            let up = |slabs: &[(f64, f64)]| if axes == 3 { reach(slabs[2]) } else { 0.0 };
+            let mut boxed_at = |s: usize| -> Option<f64> {
+                let slabs = slabs_at(s, false)?;
+                let corner = Vector3::new(reach(slabs[0]), reach(slabs[1]), up(&slabs));
                 Some(scaled_norm(team.dim, &corner, a, b))
             };
             let mut at = ((around / step).round() as usize).clamp(first, end);
-            let mut least = kept_at(at)?;
+            let mut least = boxed_at(at)?;
             // Far from touching there, no claim: the bound's least was within
             // 2% of its value at the ball's instant on the pairs it certified,
             // and the walk costs a few programs an instant.
@@ -121,12 +142,20 @@ impl Problem {
             for walk in [-1_isize, 1] {
                 while least >= touching {
                     let Some(next) = at.checked_add_signed(walk).filter(|s| (first..=end).contains(s)) else { break };
-                    let kept = kept_at(next)?;
+                    let kept = boxed_at(next)?;
                     if kept >= least {
                         break;
                     }
                     (at, least) = (next, kept);
                 }
+            }
+            // The box's corner cut by the diagonals, where it is least and
+            // near touching.
+            if (touching..touching * POLYGON_WITHIN).contains(&least) {
+                let slabs = slabs_at(at, true)?;
+                let horizontal: Vec<(f64, f64)> = slabs[..2].iter().chain(&slabs[axes..]).copied().collect();
+                let corner = Vector3::new(farthest_in_slabs(&normals, &horizontal), 0.0, up(&slabs));
+                least = scaled_norm(team.dim, &corner, a, b);
             }
             (least < touching).then_some((least, at as f64 * step))
         })
@@ -137,8 +166,50 @@ impl Problem {
 /// separation it must keep is searched at the instants around it.
 const WALK_WITHIN: f64 = 1.05;
 
+/// A pair whose box bound, where least, is within this many times the
+/// separation it must keep is bounded again with the diagonals too: on
+/// 300 16-robot starts at 0.3-1.0 m/s (seeds 900, 2000, 3000) the
+/// diagonals cut four such bounds (1.004-1.033 of it) by 0.2-1.8%,
+/// certifying the two within 1.01, and their eight programs cost about
+/// 7 ms (docs/experiments/2026-11-29-pairs-bounded-with-diagonals.md).
+const POLYGON_WITHIN: f64 = 1.02;
+
 /// The pairs checked lately.
 static KEPT: Memo<Vec<u64>, Option<(f64, f64)>> = Memo::new();
+
+/// The farthest point from the origin (m) of the polygon of 2D points `x`
+/// with `lo <= n . x <= hi` for every unit normal `n` of `normals` and
+/// range of `slabs`: the largest norm of its vertices, each the crossing
+/// of two of the slabs' lines that every slab holds (a little past them
+/// counts: a larger bound is the safe side). Bounded by the box of the
+/// first two slabs' corner (their normals orthogonal).
+pub(crate) fn farthest_in_slabs(normals: &[[f64; 2]], slabs: &[(f64, f64)]) -> f64 {
+    let corner = |k: usize| slabs[k].0.abs().max(slabs[k].1.abs());
+    let boxed = corner(0).hypot(corner(1));
+    let lines: Vec<([f64; 2], f64)> =
+        normals.iter().zip(slabs).flat_map(|(n, &(lo, hi))| [(*n, lo), (*n, hi)]).collect();
+    let slack = 1e-9 * (1.0 + boxed);
+    let inside = |x: [f64; 2]| {
+        normals.iter().zip(slabs).all(|(n, (lo, hi))| {
+            let v = n[0] * x[0] + n[1] * x[1];
+            v >= lo - slack && v <= hi + slack
+        })
+    };
+    let mut farthest: Option<f64> = None;
+    for (k, (n, c)) in lines.iter().enumerate() {
+        for (m, d) in &lines[k + 1..] {
+            let det = n[0] * m[1] - n[1] * m[0];
+            if det.abs() < 1e-9 {
+                continue;
+            }
+            let x = [(c * m[1] - d * n[1]) / det, (n[0] * d - m[0] * c) / det];
+            if inside(x) {
+                farthest = Some(farthest.unwrap_or(0.0).max(x[0].hypot(x[1])));
+            }
+        }
+    }
+    farthest.map_or(boxed, |f| f.min(boxed))
+}
 
 #[cfg(test)]
 mod tests {
@@ -193,5 +264,53 @@ mod tests {
         assert_eq!(outcome.stop, Stop::Verified);
         let m = Metrics::measure(&far, &engine.plan(outcome.state.xi));
         assert!(m.success(0.2) && m.max_acceleration <= 3.0 + 1e-6, "{m:?}");
+    }
+
+    #[test]
+    fn a_pair_the_box_leaves_just_apart_is_certified_with_the_diagonals() {
+        use crate::problem::{FEASIBILITY_TOLERANCE, ProblemError};
+        use crate::scenes::{Family, Scene};
+        // Instance 3012 of `flowopt bench --robots 16 --start-speed 0.6
+        // --max-acceleration 3 --seed 3000`: the box leaves robots 3 and 7
+        // 0.9935 apart (scaled), just past the line, 0.99; with the
+        // diagonals they keep 0.987 at the most. Without them it was
+        // planned only over the limit (5.1 m/s^2).
+        let scene = Scene { start_speed: 0.6, ..Scene::new(Family::Random, Dim::Two, 16, 3012) };
+        let (mut problem, _) = scene.generate().unwrap();
+        problem.team.max_acceleration = Some(3.0);
+        match problem.validate() {
+            Err(ProblemError::CannotAvoid { i: 3, j: 7, scaled, .. }) => {
+                assert!(scaled < 1.0 - FEASIBILITY_TOLERANCE && scaled > 0.98, "{scaled}")
+            }
+            other => panic!("{other:?}"),
+        }
+    }
+
+    #[test]
+    fn the_farthest_point_of_the_slabs_is_a_vertex_of_their_polygon() {
+        let r = FRAC_1_SQRT_2;
+        let normals = [[1.0, 0.0], [0.0, 1.0], [r, r], [r, -r]];
+        // A square cut by its diagonals' slabs: an octagon.
+        let octagon = farthest_in_slabs(&normals, &[(-1.0, 1.0), (-1.0, 1.0), (-1.0, 1.0), (-1.0, 1.0)]);
+        let vertex = 1.0_f64.hypot(2.0_f64.sqrt() - 1.0);
+        assert!((octagon - vertex).abs() < 1e-12, "{octagon} against {vertex}");
+        // Diagonal slabs wider than the square's corners: the square's.
+        let square = farthest_in_slabs(&normals, &[(-1.0, 1.0), (-1.0, 1.0), (-5.0, 5.0), (-5.0, 5.0)]);
+        assert!((square - 2.0_f64.sqrt()).abs() < 1e-12, "{square}");
+        // Off the origin and uneven, no point of the slabs is farther.
+        let slabs = [(0.2, 0.9), (-0.4, 0.3), (0.0, 0.75), (-0.1, 0.8)];
+        let bound = farthest_in_slabs(&normals, &slabs);
+        let mut seen: f64 = 0.0;
+        for k in 0..=400 {
+            for m in 0..=400 {
+                let x = [-1.0 + 2.0 * k as f64 / 400.0, -1.0 + 2.0 * m as f64 / 400.0];
+                let inside =
+                    normals.iter().zip(&slabs).all(|(n, (lo, hi))| (lo..=hi).contains(&&(n[0] * x[0] + n[1] * x[1])));
+                if inside {
+                    seen = seen.max(x[0].hypot(x[1]));
+                }
+            }
+        }
+        assert!(seen <= bound + 1e-12 && seen > bound - 0.01, "grid {seen}, bound {bound}");
     }
 }
