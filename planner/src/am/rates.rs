@@ -1,8 +1,8 @@
 //! The speed and acceleration limits as constraints of the iteration (the
 //! paper's remark that velocity and acceleration bounds fit the problem's
 //! structure): each robot's velocity ([`super::AmSettings::limit_speed`])
-//! and acceleration ([`super::AmSettings::limit_acceleration`]) at every constrained
-//! instant are kept inside the balls of the team's `max_speed` and
+//! and acceleration ([`super::AmSettings::limit_acceleration`]) at every
+//! constrained instant are kept inside the balls of the team's `max_speed` and
 //! `max_acceleration`, slightly shrunk ([`SPEED_MARGIN`],
 //! [`ACCELERATION_MARGIN`]), and the dense verification checks the limits
 //! themselves.
@@ -33,11 +33,13 @@ use crate::problem::Team;
 /// limit itself passes between them.
 const ACCELERATION_MARGIN: f64 = 0.97;
 
-/// The speed limit's fraction, as [`ACCELERATION_MARGIN`]: a velocity
-/// varies less between two instants than an acceleration does; above the
-/// share plans stretched in time keep under the limit
+/// The speed limit's fraction, as [`ACCELERATION_MARGIN`]: above the share
+/// plans stretched in time keep under the limit
 /// (`flowopt_daemon::repair::STRETCH_HEADROOM`, 2%), so that the limit
-/// leaves those as they are.
+/// leaves those as they are. Between two instants a speed overshoots less
+/// than an acceleration (one derivative fewer); the 128-robot team's
+/// repairs at it verified within the limit in 10 of 13 cases, the other 3
+/// running out of time (docs/experiments/2026-11-29-speed-limit-in-warm-replans.md).
 const SPEED_MARGIN: f64 = 0.99;
 
 /// Weight `w` of the acceleration rows against the position rows. Stopping
