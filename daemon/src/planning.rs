@@ -103,15 +103,12 @@ enum Fallback {
     Nothing,
 }
 
-/// The team's limits and tolerances.
+/// The team's deadline and tolerances (its speed and acceleration limits
+/// are the team's own: `Team::max_speed`, `Team::max_acceleration`).
 #[derive(Debug, Clone, Copy)]
 pub(crate) struct Rules {
     /// The time an answer may take from its snapshot's arrival.
     pub(crate) deadline: Duration,
-    /// The robots' top speed (m/s).
-    pub(crate) max_speed: f64,
-    /// Their top acceleration (m/s^2).
-    pub(crate) max_acceleration: f64,
     /// Robots within this distance (m) of a plan follow it.
     pub(crate) follow_tolerance: f64,
     /// Robots within this distance (m) of the held plan are warm-started.

@@ -139,8 +139,6 @@ impl TeamPlanner {
             team,
             rules: Rules {
                 deadline: Duration::from_secs_f64(config.deadline_ms * 1e-3),
-                max_speed: config.max_speed,
-                max_acceleration: config.max_acceleration,
                 follow_tolerance: config.follow_tolerance_m,
                 warm_tolerance: config.warm_tolerance_m,
                 stale_after_ns: (config.stale_after_ms * 1e6) as u64,

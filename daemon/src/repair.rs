@@ -119,10 +119,13 @@ impl TeamPlanner {
         self.kept_within(plan, peaks, problem)
     }
 
-    /// `plan`'s peak speed and acceleration against the team's limits.
+    /// `plan`'s peak speed and acceleration against the team's limits (its
+    /// configuration's, which the team carries; one it lacks limits
+    /// nothing).
     fn peaks(&self, plan: &JointPlan) -> Peaks {
         let (speed, acceleration) = plan.peak_rates(DENSE_FACTOR * self.team.samples);
-        let factor = (speed / self.rules.max_speed).max((acceleration / self.rules.max_acceleration).sqrt());
+        let over = |rate: f64, limit: Option<f64>| limit.map_or(0.0, |l| rate / l);
+        let factor = over(speed, self.team.max_speed).max(over(acceleration, self.team.max_acceleration).sqrt());
         Peaks { speed, acceleration, factor }
     }
 
