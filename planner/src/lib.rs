@@ -12,6 +12,7 @@
 //! - [`kkt`]: the structured (mean/difference-mode) KKT solve and its dense
 //!   reference;
 //! - [`linalg`]: the dense products they run on;
+//! - [`lp`]: small dense linear programs (the certificates' programs);
 //! - [`crew`]: the threads a run's parallel steps share, and the fixed
 //!   blocks that keep its numbers independent of their count;
 //! - [`am`]: the alternating-minimisation engine, used as the safety filter
@@ -36,6 +37,7 @@ pub mod closing;
 pub mod crew;
 pub mod kkt;
 pub mod linalg;
+pub mod lp;
 pub mod method;
 pub mod metrics;
 pub mod optimiser;

@@ -53,9 +53,8 @@ use std::sync::OnceLock;
 
 use crossbeam::channel::{Sender, unbounded};
 
-use microlp::{ComparisonOp, OptimizationDirection, Problem as Lp};
-
 use crate::basis::{BOUNDARY_ROWS, DENSE_FACTOR, bernstein_row};
+use crate::lp::Lp;
 
 mod excess;
 mod program;
@@ -248,8 +247,8 @@ fn solve(shape: Shape, k: usize) -> f64 {
 }
 
 /// The plan's bound at the grid speed `k SPEED_STEP` (the top one beyond
-/// it), solved on first use (one small linear program, up to tens of ms,
-/// outside the table's lock) and kept for the process; with
+/// it), solved on first use (one small linear program, under a
+/// millisecond at degree 10, outside the table's lock) and kept for the process; with
 /// [`solve_in_background`], never waited for.
 #[must_use]
 fn plan_bound_at(shape: Shape, k: usize) -> Read {
@@ -296,28 +295,29 @@ fn plan_bound(degree: usize, samples: usize, horizon: f64, max_acceleration: f64
     let start = [0.0, step, 2.0 * step];
     let dense = DENSE_FACTOR * samples;
     let limit = max_acceleration * horizon * horizon;
-    let mut lp = Lp::new(OptimizationDirection::Minimize);
-    let free: Vec<_> = (fixed..n_xi).map(|_| lp.add_var(0.0, (f64::NEG_INFINITY, f64::INFINITY))).collect();
-    let excursion = lp.add_var(1.0, (f64::NEG_INFINITY, f64::INFINITY));
+    // The variables: the free coefficients, then the excursion (minimised:
+    // its negative maximised).
+    let free = n_xi - fixed;
+    let mut objective = vec![0.0; free + 1];
+    objective[free] = -1.0;
+    let mut lp = Lp::maximise(&objective);
     let last = ((dense - 1) as f64 * CHECKED_SHARE).floor() as usize;
     for s in 1..=last {
         let tau = s as f64 / (dense - 1) as f64;
         for (order, row) in [(0, bernstein_row(degree, 0, tau)), (2, bernstein_row(degree, 2, tau))] {
             let known: f64 = start.iter().zip(&row).map(|(c, b)| c * b).sum();
-            let mut terms: Vec<_> = free.iter().zip(&row[fixed..]).map(|(v, b)| (*v, *b)).collect();
+            let mut terms = row[fixed..].to_vec();
             if order == 0 {
-                terms.push((excursion, -1.0));
-                lp.add_constraint(&terms, ComparisonOp::Le, -known);
+                terms.push(-1.0);
+                lp.add_le(&terms, -known);
             } else {
-                lp.add_constraint(&terms, ComparisonOp::Le, limit - known);
-                lp.add_constraint(&terms, ComparisonOp::Ge, -limit - known);
+                terms.push(0.0);
+                lp.add_le(&terms, limit - known);
+                lp.add_ge(&terms, -limit - known);
             }
         }
     }
-    match lp.solve().map(microlp::SolveOutcome::into_solution) {
-        Ok(Ok(solution)) => solution.objective().max(0.0),
-        _ => 0.0,
-    }
+    lp.solve().map_or(0.0, |solution| (-solution.value).max(0.0))
 }
 
 #[cfg(test)]

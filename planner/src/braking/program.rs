@@ -14,10 +14,10 @@
 use std::collections::VecDeque;
 use std::sync::{Arc, Mutex, PoisonError};
 
-use microlp::{ComparisonOp, Solution, Variable};
 use nalgebra::Vector3;
 
 use crate::basis::{BOUNDARY_ROWS, DENSE_FACTOR, bernstein_row};
+use crate::lp::Lp;
 use crate::problem::{Problem, Team};
 
 /// The plans' form: degree, constraint samples, horizon (s), and the
@@ -90,9 +90,6 @@ impl Problem {
 
 /// A row over the free coefficients and what the fixed ones add.
 pub(super) type Row = (Vec<f64>, f64);
-
-/// A constraint on the program's variables.
-pub(super) type Constraint = (Vec<(Variable, f64)>, ComparisonOp, f64);
 
 /// The basis' position and acceleration rows (normalised time) at the
 /// dense instants of one degree and sample count: the same for every
@@ -197,12 +194,15 @@ impl AxisProgram {
         self.free.1
     }
 
-    /// The acceleration constraints at dense instant `s` on the free
-    /// coefficients `vars`.
-    pub(super) fn acceleration_cuts(&self, s: usize, vars: &[Variable]) -> [Constraint; 2] {
+    /// Adds the acceleration rows of dense instant `s` to `lp`, whose first
+    /// variables are the free coefficients (any after them left out of
+    /// the rows).
+    pub(super) fn add_acceleration(&self, lp: &mut Lp, s: usize) {
         let (weights, known) = self.at(s, 1);
-        let terms: Vec<_> = vars.iter().zip(weights).map(|(v, b)| (*v, *b)).collect();
-        [(terms.clone(), ComparisonOp::Le, self.limit - known), (terms, ComparisonOp::Ge, -self.limit - known)]
+        let mut row = weights.to_vec();
+        row.resize(lp.variables(), 0.0);
+        lp.add_le(&row, self.limit - known);
+        lp.add_ge(&row, -self.limit - known);
     }
 
     /// The instants cuts start from: every `every`-th and the last.
@@ -212,29 +212,23 @@ impl AxisProgram {
     }
 
     /// The dense instant whose row `which` (0 position, 1 acceleration)
-    /// `solution`'s free coefficients `vars` break most by `excess`
-    /// (beyond [`TOLERANCE`]), if any.
-    pub(super) fn worst(
-        &self,
-        solution: &Solution,
-        vars: &[Variable],
-        which: usize,
-        excess: &dyn Fn(f64) -> f64,
-    ) -> Option<usize> {
-        let x: Vec<f64> = vars.iter().map(|v| solution.var_value(*v)).collect();
+    /// the free coefficients `x` (the first of a solution's variables)
+    /// break most by `excess` (beyond [`TOLERANCE`]), if any.
+    pub(super) fn worst(&self, x: &[f64], which: usize, excess: &dyn Fn(f64) -> f64) -> Option<usize> {
         (0..self.known_sums.len())
             .map(|s| {
                 let (weights, known) = self.at(s, which);
-                (s, excess(known + weights.iter().zip(&x).map(|(w, c)| w * c).sum::<f64>()))
+                (s, excess(known + weights.iter().zip(x).map(|(w, c)| w * c).sum::<f64>()))
             })
             .filter(|(_, e)| *e > TOLERANCE)
             .max_by(|a, b| a.1.total_cmp(&b.1))
             .map(|(s, _)| s)
     }
 
-    /// The instant `solution` breaks the acceleration limit at most, if any.
-    pub(super) fn over_limit(&self, solution: &Solution, vars: &[Variable]) -> Option<usize> {
-        self.worst(solution, vars, 1, &|a| (a.abs() - self.limit) / self.limit)
+    /// The instant the free coefficients `x` break the acceleration limit
+    /// at most, if any.
+    pub(super) fn over_limit(&self, x: &[f64]) -> Option<usize> {
+        self.worst(x, 1, &|a| (a.abs() - self.limit) / self.limit)
     }
 }
 

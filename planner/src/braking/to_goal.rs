@@ -7,8 +7,8 @@
 //! coefficient after the start's and checks the first
 //! [`super::CHECKED_SHARE`] of the horizon, so that it depends on the
 //! speed alone; this program fixes the goal's coefficients too and checks
-//! the whole horizon, so it is solved per start (about a millisecond
-//! here). On 16-robot starts at 0.3-1.0 m/s it certified starts the table
+//! the whole horizon, so it is solved per start (about 50 us here at
+//! degree 10, [`crate::lp`]). On 16-robot starts at 0.3-1.0 m/s it certified starts the table
 //! left to the optimiser, which ran them to its iteration cap 3-9 mm out
 //! of the box (docs/experiments/2026-11-28-plans-from-motion-within-the-limit.md).
 //!
@@ -17,9 +17,8 @@
 //! (a relaxation): past the box's tolerance by it, no plan of the team's
 //! form within the limit passes the verification.
 
-use microlp::{ComparisonOp, OptimizationDirection, Problem as Lp};
-
-use super::program::{AxisMotion, AxisProgram, Constraint, Form, MAX_ROUNDS, Memo};
+use super::program::{AxisMotion, AxisProgram, Form, MAX_ROUNDS, Memo};
+use crate::lp::Lp;
 
 /// One robot's motion along one axis, towards one side of the box.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -67,36 +66,36 @@ fn solve(form: Form, start: AxisStart) -> Option<f64> {
     // The side's direction: distances past it are `sign * p - sign * side`.
     let sign = if start.upper { 1.0 } else { -1.0 };
     let program = AxisProgram::new(form, start.motion, sign)?;
-    let mut lp = Lp::new(OptimizationDirection::Minimize);
-    let free: Vec<_> = (0..program.free()).map(|_| lp.add_var(0.0, (f64::NEG_INFINITY, f64::INFINITY))).collect();
-    let past = lp.add_var(1.0, (f64::NEG_INFINITY, f64::INFINITY));
-    // An instant's constraints: `sign p - past <= sign side`, `|a| <= limit`.
-    let constraints = |s: usize| -> [Constraint; 3] {
+    // The variables: the free coefficients, then how far past the side
+    // (minimised: its negative maximised).
+    let free = program.free();
+    let mut objective = vec![0.0; free + 1];
+    objective[free] = -1.0;
+    let mut lp = Lp::maximise(&objective);
+    // An instant's rows: `sign p - past <= sign side`, `|a| <= limit`.
+    let add = |lp: &mut Lp, s: usize| {
         let (position, known) = program.at(s, 0);
-        let mut at: Vec<_> = free.iter().zip(position).map(|(v, b)| (*v, *b)).collect();
-        at.push((past, -1.0));
-        let [upper, lower] = program.acceleration_cuts(s, &free);
-        [(at, ComparisonOp::Le, sign * start.side - known), upper, lower]
+        let mut row = position.to_vec();
+        row.push(-1.0);
+        lp.add_le(&row, sign * start.side - known);
+        program.add_acceleration(lp, s);
     };
     for s in program.coarse(COARSE) {
-        for (terms, op, rhs) in constraints(s) {
-            lp.add_constraint(&terms, op, rhs);
-        }
+        add(&mut lp, s);
     }
-    let mut solution = lp.solve().ok()?.into_solution().ok()?;
     for _ in 0..MAX_ROUNDS {
-        let side = sign * start.side + solution.var_value(past);
+        let solution = lp.solve().ok()?;
+        let (x, past) = solution.x.split_at(free);
+        let side = sign * start.side + past[0];
         // The instants that break the position and the acceleration rows
         // most, added one each per round.
-        let past_side = program.worst(&solution, &free, 0, &|p| p - side);
-        let over_limit = program.over_limit(&solution, &free);
+        let past_side = program.worst(x, 0, &|p| p - side);
+        let over_limit = program.over_limit(x);
         if past_side.is_none() && over_limit.is_none() {
-            return Some(solution.objective());
+            return Some(-solution.value);
         }
         for s in past_side.into_iter().chain(over_limit) {
-            for (terms, op, rhs) in constraints(s) {
-                solution = solution.add_constraint(&terms, op, rhs).ok()?.into_solution().ok()?;
-            }
+            add(&mut lp, s);
         }
     }
     None

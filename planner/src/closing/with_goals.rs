@@ -171,7 +171,8 @@ const WALK_WITHIN: f64 = 1.05;
 /// 300 16-robot starts at 0.3-1.0 m/s (seeds 900, 2000, 3000) the
 /// diagonals cut four such bounds (1.004-1.033 of it) by 0.2-1.8%,
 /// certifying the two within 1.01, and their eight programs cost about
-/// 7 ms (docs/experiments/2026-11-29-pairs-bounded-with-diagonals.md).
+/// 7 ms then (docs/experiments/2026-11-29-pairs-bounded-with-diagonals.md;
+/// about a tenth of that with [`crate::lp`]).
 const POLYGON_WITHIN: f64 = 1.02;
 
 /// The pairs checked lately.
