@@ -47,6 +47,21 @@ fn split_threads(threads: usize) -> (usize, usize) {
     (worker, threads.saturating_sub(worker).max(1))
 }
 
+/// The daemon's cold planners' settings from a team's: a cold plan from
+/// motion over the acceleration limit is refused and the next snapshot's
+/// request starts from where the robots are then (planning the stale
+/// request again within the limit held the optimiser's lane for up to its
+/// iteration cap: 16-robot lab, seeds 0-3, a walker contact at 1.000 of
+/// the separation in one run, main none;
+/// docs/experiments/2026-11-28-plans-from-motion-within-the-limit.md);
+/// and the learned pipeline races cold plans from motion too (without it
+/// the 16-robot lab day reached fewer goals: seed 0, 1.78 and 2.59 goals
+/// per robot-minute against 2.66-2.72;
+/// docs/experiments/2026-11-29-small-programs.md).
+pub(crate) fn cold_settings(settings: PlannerSettings) -> PlannerSettings {
+    PlannerSettings { retry_within_limits: false, race_from_motion: true, ..settings }
+}
+
 impl TeamPlanner {
     /// Builds every engine (basis, sample grids, KKT factorisations) the
     /// team can need, so that no snapshot waits for one, and starts the
@@ -65,14 +80,7 @@ impl TeamPlanner {
         // same plans on any count), so that spinning members never outnumber
         // the cores the controllers also need.
         let (threads, cold_threads) = split_threads(settings.threads());
-        // A cold plan from motion over the acceleration limit is refused
-        // and the next snapshot's request starts from where the robots
-        // are then; planning the stale request again within the limit
-        // held the optimiser's lane for up to its iteration cap (16-robot
-        // lab, seeds 0-3: a walker contact at 1.000 of the separation in
-        // one run, main none;
-        // docs/experiments/2026-11-28-plans-from-motion-within-the-limit.md).
-        let settings = PlannerSettings { threads: cold_threads, retry_within_limits: false, ..settings };
+        let settings = PlannerSettings { threads: cold_threads, ..cold_settings(settings) };
         let filter_settings =
             buffered(AmSettings { max_iterations: WARM_ITERATIONS, threads, ..AmSettings::safety_filter() }, buffer);
         let filters = EngineSet::preloaded(&team, Objective::Projection, filter_settings, max)?;

@@ -8,7 +8,9 @@
 //!   where `learned.init` names one) and the optimiser race, where the
 //!   team has at most `race_max_robots` robots and the weights plan in its
 //!   dimension and basis; else the optimiser alone, and [`members`] says
-//!   why. Where the team has an acceleration limit, the optimiser makes
+//!   why. The pipeline plans problems from rest only ([`FromRest`]): from
+//!   motion the optimiser plans alone (unless `race_from_motion`, as in
+//!   the daemon). Where the team has an acceleration limit, the optimiser makes
 //!   a verified plan from motion that is over it again within it
 //!   ([`WithinLimits`], unless `retry_within_limits` is off, as in the
 //!   daemon). Teams too small for the optimiser's crew
@@ -26,6 +28,7 @@ use flowopt_planner::optimiser::Optimiser;
 use flowopt_planner::problem::{Dim, Team};
 
 use crate::filter_bench::PerturbedFilter;
+use crate::from_rest::FromRest;
 use crate::method::Method;
 use crate::race::Race;
 use crate::settings::PlannerSettings;
@@ -115,7 +118,10 @@ pub fn members(settings: &PlannerSettings, team: &Team) -> Result<Members, PlanE
                 _ => optimiser(),
             };
             let (mut racers, why): Members = match learned {
-                Ok(pipeline) => (vec![Box::new(pipeline), optimiser()], None),
+                // From motion the optimiser plans alone (`from_rest.rs`),
+                // unless the settings race the pipeline there too.
+                Ok(pipeline) if settings.race_from_motion => (vec![Box::new(pipeline), optimiser()], None),
+                Ok(pipeline) => (vec![Box::new(FromRest(Box::new(pipeline))), optimiser()], None),
                 Err(why) => (vec![optimiser()], Some(why)),
             };
             racers.extend(variants(settings, team, settings.threads().saturating_sub(racers.len())));
@@ -200,6 +206,21 @@ mod tests {
         missing.set("learned.flow=/no/such/flow.safetensors").unwrap();
         let err = members(&missing, &Team::default_for(Dim::Two, 16)).err().expect("an error").to_string();
         assert!(err.contains("/no/such/flow.safetensors"), "{err}");
+    }
+
+    #[test]
+    fn auto_plans_from_motion_with_the_optimiser_alone() {
+        let settings = PlannerSettings { threads: 1, ..PlannerSettings::default() };
+        let team = Team::default_for(Dim::Two, 16);
+        let mut auto = planner(&settings, &team).unwrap();
+        for seed in 0..4 {
+            let mut problem = RandomScenario::new(team.clone()).generate(seed).unwrap();
+            let rest = auto.plan(&problem, &Budget::unlimited(), seed).unwrap();
+            assert!(rest.verified(), "{seed}");
+            problem.starts[0].velocity.x = 0.3;
+            let moving = auto.plan(&problem, &Budget::unlimited(), seed).unwrap();
+            assert!(moving.verified() && moving.by == "optimiser", "{seed}: by {}", moving.by);
+        }
     }
 
     #[test]

@@ -14,7 +14,9 @@
 //!   cancelled; anytime for the daemon, or one call for the command line
 //!   (it is itself a [`Planner`]);
 //! - [`PerturbedFilter`]: the safety filter's benchmark (the optimiser's
-//!   plan perturbed and repaired).
+//!   plan perturbed and repaired);
+//! - [`FromRest`]: `auto`'s learned member outside the daemon, which
+//!   declines problems from motion.
 //!
 //! ```
 //! use flowopt_methods::{Method, PlannerSettings, build};
@@ -33,6 +35,7 @@
 
 pub mod build;
 mod filter_bench;
+mod from_rest;
 mod method;
 mod race;
 pub mod settings;
@@ -40,6 +43,7 @@ mod within_limits;
 
 pub use filter_bench::PerturbedFilter;
 pub use flowopt_planner::method::{PlanError, Planned, Planner, Stages};
+pub use from_rest::FromRest;
 pub use method::Method;
 pub use race::{Race, RaceResult, Request};
 pub use settings::{PlannerSettings, SettingsError};

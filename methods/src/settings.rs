@@ -69,6 +69,14 @@ pub struct PlannerSettings {
     /// off (`flowopt_daemon`'s preload: a second run holds the cold lane
     /// from a start that is stale by then).
     pub retry_within_limits: bool,
+    /// `auto` races the learned pipeline on problems whose robots are in
+    /// motion too; off, the optimiser plans those alone
+    /// ([`crate::FromRest`]: on two cores the race slowed it more than
+    /// the pipeline's wins from motion saved). The daemon turns it on
+    /// (`flowopt_daemon`'s preload: without the pipeline from motion, its
+    /// 16-robot lab day reached 1.78-2.59 goals per robot-minute at seed 0
+    /// against 2.66-2.72).
+    pub race_from_motion: bool,
     /// Threads the optimiser iterates on, the calling one among them (teams
     /// of [`flowopt_planner::am::CREW_MIN_ROBOTS`] robots or more, one per
     /// block of 16 robots at most; the same plans for every count); 0: the
@@ -86,6 +94,7 @@ impl Default for PlannerSettings {
             learned: PipelineSettings::default(),
             race_max_robots: RACE_MAX_ROBOTS,
             retry_within_limits: true,
+            race_from_motion: false,
             threads: 0,
         }
     }

@@ -37,7 +37,7 @@ pub use crate::start_violation::{Against, BrakingExcess, RECOVERABLE_DEPTH, RETU
 pub const FEASIBILITY_TOLERANCE: f64 = 0.01;
 
 /// Start speed (m/s) and acceleration (m/s^2) at or below which a robot
-/// counts as at rest ([`Problem::stretchable`]).
+/// counts as at rest ([`Problem::at_rest`]).
 pub const AT_REST: f64 = 0.02;
 
 /// Workspace dimension.
@@ -402,9 +402,8 @@ pub struct Problem {
     pub obstacles: Vec<Obstacle>,
 }
 
-/// The depth and closing rate of a body at offset `d` from another
-/// (scaled by `(a, a, b)`), at relative velocity `v`, if it is closer than
-/// the tolerance allows.
+/// The depth and closing rate of a body at offset `d` from another (scaled
+/// by `(a, a, b)`), at relative velocity `v`, if closer than tolerated.
 fn overlap(dim: Dim, d: Vector3<f64>, v: Vector3<f64>, a: f64, b: f64) -> Option<(f64, f64)> {
     let (ds, vs) = (scaled(dim, &d, a, b), scaled(dim, &v, a, b));
     let d0 = ds.norm();
@@ -430,15 +429,18 @@ impl Problem {
         self.team.robots
     }
 
-    /// Whether a plan for this problem can be stretched in time to bring
-    /// its speed and acceleration within limits without changing what was
-    /// verified: every robot starts at rest ([`AT_REST`]) and every
-    /// obstacle is static (the paths, and so the clearances, stay as they
-    /// were). A plan from motion, or among moving obstacles, over the
-    /// team's acceleration limit cannot be followed.
-    pub fn stretchable(&self) -> bool {
+    /// Whether every robot starts at rest (speed and acceleration, [`AT_REST`]).
+    pub fn at_rest(&self) -> bool {
         self.starts.iter().all(|s| s.velocity.norm() <= AT_REST && s.acceleration.norm() <= AT_REST)
-            && self.obstacles.iter().all(|o| o.velocity.norm() == 0.0)
+    }
+
+    /// Whether a plan can be stretched in time to bring its speed and
+    /// acceleration within limits without changing what was verified: every
+    /// robot at rest and every obstacle static (the paths, and so the
+    /// clearances, stay). A plan from motion, or among moving obstacles,
+    /// over the team's acceleration limit cannot be followed.
+    pub fn stretchable(&self) -> bool {
+        self.at_rest() && self.obstacles.iter().all(|o| o.velocity.norm() == 0.0)
     }
 
     /// The values of the boundary rows ([`crate::basis::Basis::boundary_rows`])

@@ -237,7 +237,8 @@ fn cold_plans_from_motion_over_the_limits_are_refused_for_them() {
 /// `wait` before every request.
 fn hold_racers(planner: &mut TeamPlanner, config: &TeamConfig, wait: fn()) {
     let team = planner.team().clone();
-    let (racers, _) = flowopt_methods::build::members(&config.planner_settings(&team), &team).unwrap();
+    let settings = crate::preload::cold_settings(config.planner_settings(&team));
+    let (racers, _) = flowopt_methods::build::members(&settings, &team).unwrap();
     planner.cold = Race::start("t", racers, None, wait);
 }
 
