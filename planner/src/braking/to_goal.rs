@@ -8,9 +8,10 @@
 //! [`super::CHECKED_SHARE`] of the horizon, so that it depends on the
 //! speed alone; this program fixes the goal's coefficients too and checks
 //! the whole horizon, so it is solved per start (about 50 us here at
-//! degree 10, [`crate::lp`]). On 16-robot starts at 0.3-1.0 m/s it certified starts the table
-//! left to the optimiser, which ran them to its iteration cap 3-9 mm out
-//! of the box (docs/experiments/2026-11-28-plans-from-motion-within-the-limit.md).
+//! degree 10, [`crate::lp`]). On 16-robot starts at 0.3-1.0 m/s it
+//! certified starts the table left to the optimiser, which ran them to its
+//! iteration cap 3-9 mm out of the box
+//! (docs/experiments/2026-11-28-plans-from-motion-within-the-limit.md).
 //!
 //! Only the approached side is constrained and only the verification's
 //! instants, so that the program's value is a lower bound on every plan's
