@@ -118,10 +118,13 @@ pub fn members(settings: &PlannerSettings, team: &Team) -> Result<Members, PlanE
                 _ => optimiser(),
             };
             let (mut racers, why): Members = match learned {
-                // From motion the optimiser plans alone (`from_rest.rs`),
-                // unless the settings race the pipeline there too.
-                Ok(pipeline) if settings.race_from_motion => (vec![Box::new(pipeline), optimiser()], None),
-                Ok(pipeline) => (vec![Box::new(FromRest(Box::new(pipeline))), optimiser()], None),
+                Ok(pipeline) => {
+                    // From motion the optimiser plans alone (`from_rest.rs`),
+                    // unless the settings race the pipeline there too.
+                    let pipeline: Box<dyn Planner> = Box::new(pipeline);
+                    let learned = if settings.race_from_motion { pipeline } else { Box::new(FromRest(pipeline)) };
+                    (vec![learned, optimiser()], None)
+                }
                 Err(why) => (vec![optimiser()], Some(why)),
             };
             racers.extend(variants(settings, team, settings.threads().saturating_sub(racers.len())));

@@ -196,8 +196,8 @@ impl Lp {
                 .any(|(c, &y)| matches!(c, Column::Artificial(_)) && y > FEASIBILITY_TOLERANCE)
         };
         if above(&levels, basic) {
-            self.pivot(basic, &b, &|c| f64::from(u8::from(matches!(c, Column::Artificial(_)))))?;
-            if above(&self.levels(basic, &b)?, basic) {
+            let (_, levels) = self.pivot(basic, &b, &|c| f64::from(u8::from(matches!(c, Column::Artificial(_)))))?;
+            if above(&levels, basic) {
                 return Err(LpError::Unbounded);
             }
         }
@@ -205,8 +205,7 @@ impl Lp {
             Column::Row(j) => self.rhs[j],
             Column::Artificial(_) => 0.0,
         };
-        let x = self.pivot(basic, &b, &cost)?;
-        let levels = self.levels(basic, &b)?;
+        let (x, levels) = self.pivot(basic, &b, &cost)?;
         let dual: f64 = basic.iter().zip(levels.iter()).map(|(&c, y)| cost(c) * y).sum();
         let primal: f64 = self.objective.iter().zip(&x).map(|(c, x)| c * x).sum();
         if (dual - primal).abs() > AGREEMENT * (1.0 + dual.abs()) {
@@ -227,8 +226,14 @@ impl Lp {
     }
 
     /// Simplex pivots under `cost` (artificial columns never enter) until
-    /// no row prices in; the primal point of the last basis.
-    fn pivot(&self, basic: &mut [Column], b: &DVector<f64>, cost: &dyn Fn(Column) -> f64) -> Result<Vec<f64>, LpError> {
+    /// no row prices in; the primal point and the basic levels of the last
+    /// basis.
+    fn pivot(
+        &self,
+        basic: &mut [Column],
+        b: &DVector<f64>,
+        cost: &dyn Fn(Column) -> f64,
+    ) -> Result<(Vec<f64>, DVector<f64>), LpError> {
         let (d, m) = (self.variables(), self.rows());
         let cap = 50 * (m + d) + 100;
         let (mut degenerate, mut bland) = (0, false);
@@ -257,7 +262,7 @@ impl Lp {
                 }
             }
             let Some((j, _)) = enter else {
-                return Ok(x);
+                return Ok((x, levels));
             };
             let column = DVector::from_fn(d, |k, _| self.entry(Column::Row(j), k));
             let u = lu.solve(&column).ok_or(LpError::Inaccurate)?;
